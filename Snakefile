@@ -1,0 +1,21 @@
+# Granular multiscale workflow: RVE -> FEM–DEM (or the elastoplastic reference) -> dataset
+# -> NNσ/ND training -> FEM–ML -> figures, tables, report.
+#
+#   snakemake -j2 all                                   default scale (config/config.yaml)
+#   snakemake -j2 all --configfile config/tiny.yaml     tests/CI scale
+#   snakemake --report results/report.html              the HTML report of a finished run
+
+configfile: "config/config.yaml"
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/reference.smk"
+
+
+report: "workflow/report/workflow.rst"
+
+
+rule all:
+    input:
+        ALL_TARGETS,
+    default_target: True

@@ -1,0 +1,113 @@
+"""Configuration: loading, defaults and validation against workflow/schemas/config.schema.yaml.
+
+Errors name the offending key with a dotted path (``dem.n_spheres``), so a user knows
+what to edit. Snakemake's ``common.smk`` and the tests both go through :func:`validate_config`.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import yaml
+
+SCHEMA_PATH = Path(__file__).resolve().parents[1] / "schemas" / "config.schema.yaml"
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
+
+
+class ConfigError(ValueError):
+    """Invalid configuration; the message names the key."""
+
+
+def _key(path) -> str:
+    parts = []
+    for p in path:
+        if isinstance(p, int):
+            parts.append(f"[{p}]")
+        else:
+            parts.append(("." if parts else "") + str(p))
+    return "".join(parts) or "<top level>"
+
+
+def _as_number(value: Any, schema: dict) -> Any:
+    """YAML 1.1 reads `1e-4` (no dot, no exponent sign) as a string: accept it as the number it is."""
+    if isinstance(value, str) and schema.get("type") == "number":
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
+
+
+def _fill_defaults(instance: Any, schema: dict) -> None:
+    if not isinstance(instance, dict):
+        return
+    props = schema.get("properties", {})
+    for name, sub in props.items():
+        if name not in instance and "default" in sub:
+            instance[name] = copy.deepcopy(sub["default"])
+        if name in instance:
+            instance[name] = _as_number(instance[name], sub)
+            _fill_defaults(instance[name], sub)
+    extra = schema.get("additionalProperties")
+    if isinstance(extra, dict):
+        for name, value in instance.items():
+            if name not in props:
+                _fill_defaults(value, extra)
+
+
+def load_schema() -> dict:
+    with open(SCHEMA_PATH) as f:
+        return yaml.safe_load(f)
+
+
+def validate_config(config: dict, schema: dict | None = None) -> dict:
+    """Fill defaults and validate; returns the completed config (a copy)."""
+    schema = schema or load_schema()
+    config = copy.deepcopy(dict(config))
+    _fill_defaults(config, schema)
+    validator = jsonschema.Draft7Validator(schema)
+    errors = sorted(validator.iter_errors(config), key=lambda e: list(e.absolute_path))
+    if errors:
+        lines = []
+        for e in errors[:10]:
+            key = _key(e.absolute_path)
+            if e.validator == "additionalProperties":
+                lines.append(f"config key '{key}': {e.message} (unknown key; see {SCHEMA_PATH.name})")
+            else:
+                lines.append(f"config key '{key}': {e.message}")
+        raise ConfigError("invalid configuration:\n  " + "\n  ".join(lines))
+    _check_consistency(config)
+    return config
+
+
+def _check_consistency(config: dict) -> None:
+    from .paths import load_paths_from_config
+
+    paths = load_paths_from_config(config)
+    for key in ("training_path", "validation_path"):
+        if config[key] not in paths:
+            raise ConfigError(
+                f"config key '{key}': unknown path {config[key]!r}; defined paths: {sorted(paths)}"
+            )
+
+
+def load_config(path: str | Path | None = None, overrides: dict | None = None) -> dict:
+    """Read a YAML config (default config/config.yaml), apply overrides, validate."""
+    path = Path(path) if path else CONFIG_DIR / "config.yaml"
+    try:
+        with open(path) as f:
+            config = yaml.safe_load(f) or {}
+    except FileNotFoundError:
+        raise ConfigError(f"config file not found: {path}") from None
+    except yaml.YAMLError as e:
+        raise ConfigError(f"config file {path} is not valid YAML: {e}") from None
+    for key, value in (overrides or {}).items():
+        node = config
+        *parents, last = key.split(".")
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[last] = value
+    return validate_config(config)
