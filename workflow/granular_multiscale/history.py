@@ -53,11 +53,15 @@ def history_from_sequence(strain: np.ndarray) -> np.ndarray:
 
 
 def history_variables_torch(acc):
-    """torch version of :func:`history_variables` (same numbers, differentiable)."""
+    """torch version of :func:`history_variables` (same numbers, differentiable, finite gradient at 0)."""
     import torch
 
     weight = torch.as_tensor(_FROBENIUS_WEIGHT, dtype=acc.dtype, device=acc.device)
-    phi1 = torch.sqrt(torch.sum(weight * acc**2, dim=-1))
+    squares = torch.sum(weight * acc**2, dim=-1)
+    # sqrt has an infinite slope at 0 (fresh points, step 0): take the subgradient 0 there so
+    # an autodiff tangent through φ stays finite; the values are those of the plain sqrt.
+    positive = squares > 0
+    phi1 = torch.where(positive, torch.sqrt(torch.where(positive, squares, torch.ones_like(squares))), 0.0 * squares)
     phi2 = acc[..., 0] + acc[..., 1] + acc[..., 2]
     phi3 = torch.prod(acc, dim=-1)
     return torch.stack([phi1, phi2, phi3], dim=-1)
