@@ -1,0 +1,1 @@
+"""Finite elements of the triaxial specimen: mesh, assembly, Newton solver, the triaxial problem."""
