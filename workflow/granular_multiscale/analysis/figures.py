@@ -1,0 +1,296 @@
+"""Matplotlib figures of the report (the paper's Figs. 8, 10–15 and a speed-vs-error plot).
+
+Every function takes data (xarray Datasets in the data contract, pandas tables) and an
+output path, draws on a fixed canvas (``figsize`` inches × ``dpi``, no tight bounding box,
+so the PNG size is known in advance) and writes the PNG atomically.
+
+Runs are passed as an ordered ``{label: Dataset}`` mapping whose first entry is the
+reference; labels appear verbatim in the legends.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Mapping
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+import xarray as xr  # noqa: E402
+
+from . import quantities as qty  # noqa: E402
+
+# reference first: black solid; then the surrogates, each in its own colour and dash
+STYLES = (
+    dict(color="black", linestyle="-", linewidth=2.0, marker=None),
+    dict(color="tab:blue", linestyle="--", linewidth=1.5, marker="o", markersize=3),
+    dict(color="tab:red", linestyle=":", linewidth=1.5, marker="s", markersize=3),
+    dict(color="tab:green", linestyle="-.", linewidth=1.2, marker="^", markersize=3),
+    dict(color="tab:purple", linestyle="--", linewidth=1.2, marker="v", markersize=3),
+    dict(color="tab:brown", linestyle=":", linewidth=1.2, marker="d", markersize=3),
+)
+
+
+def style(k: int) -> dict:
+    return dict(STYLES[k % len(STYLES)])
+
+
+def save_figure(fig, out: str | Path, dpi: int) -> Path:
+    """Write the PNG atomically (a failed write never leaves a half file) and close the figure."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp")
+    fig.savefig(tmp, dpi=dpi, format="png")
+    plt.close(fig)
+    os.replace(tmp, out)
+    return out
+
+
+def _shade_unloading(ax, phase: np.ndarray, x: np.ndarray | None = None) -> None:
+    """Grey band over the unloading steps, so the eye finds the reversal."""
+    phase = np.asarray(phase)
+    x = np.arange(len(phase)) if x is None else np.asarray(x)
+    unloading = np.flatnonzero(phase == "unloading")
+    if unloading.size:
+        ax.axvspan(x[unloading[0] - 1], x[unloading[-1]], color="0.9", zorder=0, label="unloading")
+
+
+# --------------------------------------------------------------------------------------
+# error map (paper Fig. 10)
+
+
+def _box_edges(ax, lower, upper) -> None:
+    corners = np.array([[x, y, z] for x in (lower[0], upper[0]) for y in (lower[1], upper[1]) for z in (lower[2], upper[2])])
+    for i in range(8):
+        for j in range(i + 1, 8):
+            if np.count_nonzero(corners[i] != corners[j]) == 1:
+                ax.plot(*corners[[i, j]].T, color="0.6", linewidth=0.6)
+
+
+def error_map(
+    reference: xr.Dataset,
+    surrogate: xr.Dataset,
+    train_gp,
+    heldout_gp,
+    out: str | Path,
+    *,
+    path_label: str,
+    surrogate_label: str = "FEM–ML",
+    reference_label: str = "reference",
+    figsize=(10.0, 5.5),
+    dpi: int = 120,
+    error_kpa: np.ndarray | None = None,
+) -> Path:
+    """Per-Gauss-point absolute stress error in 3D, training ○ vs held-out △ points.
+
+    ``error_kpa`` [gp] overrides the default error (mean over steps and the six components
+    of |σ_surrogate − σ_reference|, see ``quantities.stress_error_per_point``).
+    """
+    position = reference["gp_position"].values
+    if error_kpa is None:
+        error_kpa = 1e-3 * qty.stress_error_per_point(
+            surrogate["stress"].transpose("step", "gp", "comp").values,
+            reference["stress"].transpose("step", "gp", "comp").values,
+        )
+    error_kpa = np.asarray(error_kpa, dtype=float)
+    if not np.all(np.isfinite(error_kpa)):
+        bad = np.flatnonzero(~np.isfinite(error_kpa))
+        raise ValueError(f"non-finite stress error at Gauss points {bad[:10].tolist()}")
+    train_gp = np.asarray(train_gp, dtype=int)
+    heldout_gp = np.asarray(heldout_gp, dtype=int)
+    lower = reference["node_position"].values.min(axis=0)
+    upper = reference["node_position"].values.max(axis=0)
+
+    fig = plt.figure(figsize=figsize)
+    ax = fig.add_axes([0.0, 0.0, 0.58, 0.9], projection="3d")
+    norm = matplotlib.colors.Normalize(vmin=0.0, vmax=max(float(error_kpa.max()), 1e-12))
+    cmap = plt.get_cmap("viridis")
+    for idx, marker, name in ((train_gp, "o", "training"), (heldout_gp, "^", "held out")):
+        if idx.size:
+            ax.scatter(*position[idx].T, c=error_kpa[idx], cmap=cmap, norm=norm, marker=marker,
+                       s=46 if marker == "^" else 30, edgecolors="k", linewidths=0.4,
+                       depthshade=False, label=f"{name} ({idx.size})")
+    _box_edges(ax, lower, upper)
+    ax.set_box_aspect(upper - lower, zoom=0.82)
+    for pane in (ax.xaxis, ax.yaxis, ax.zaxis):
+        pane.set_pane_color((1.0, 1.0, 1.0, 0.0))
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.view_init(elev=18, azim=-55)
+    ax.legend(loc="upper left", bbox_to_anchor=(0.02, 0.98), fontsize=8, title="Gauss points", title_fontsize=8)
+    cax = fig.add_axes([0.6, 0.15, 0.015, 0.65])
+    bar = fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap), cax=cax)
+    bar.set_label("mean |σ error| (kPa)")
+
+    side = fig.add_axes([0.75, 0.15, 0.22, 0.65])
+    groups = [error_kpa[train_gp], error_kpa[heldout_gp]]
+    side.boxplot([g for g in groups], tick_labels=["training", "held out"], widths=0.5, showfliers=False)
+    for k, (g, marker) in enumerate(zip(groups, ("o", "^")), start=1):
+        jitter = np.linspace(-0.12, 0.12, g.size) if g.size > 1 else np.zeros(g.size)
+        side.scatter(k + jitter, g, c=g, cmap=cmap, norm=norm, marker=marker, s=14, edgecolors="k", linewidths=0.3)
+    side.set_ylabel("mean |σ error| (kPa)")
+    side.set_ylim(bottom=0.0)
+    side.set_title("per Gauss point", fontsize=9)
+    fig.suptitle(
+        f"{path_label}: stress error of {surrogate_label} vs {reference_label}\n"
+        "mean over load steps and the six components",
+        fontsize=10,
+    )
+    return save_figure(fig, out, dpi)
+
+
+# --------------------------------------------------------------------------------------
+# stress–strain at one Gauss point (paper Figs. 11–13)
+
+
+def stress_strain(
+    runs: Mapping[str, xr.Dataset],
+    gp: int,
+    out: str | Path,
+    *,
+    title: str,
+    figsize=(10.0, 4.2),
+    dpi: int = 120,
+) -> Path:
+    """q and volumetric strain against the local axial strain −ε33 at Gauss point ``gp``."""
+    fig, (ax_q, ax_v) = plt.subplots(1, 2, figsize=figsize)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.13, top=0.86, wspace=0.28)
+    for k, (label, ds) in enumerate(runs.items()):
+        strain = ds["strain"].sel(gp=gp).transpose("step", "comp").values
+        stress = ds["stress"].sel(gp=gp).transpose("step", "comp").values
+        ea = 100 * qty.local_axial_strain(strain)
+        s = style(k)
+        ax_q.plot(ea, 1e-3 * qty.deviatoric_stress(stress), label=label, **s)
+        ax_v.plot(ea, 100 * qty.volumetric_strain(strain), label=label, **s)
+    ax_q.set_xlabel("local axial strain −ε33 (%)")
+    ax_q.set_ylabel("deviatoric stress q (kPa)")
+    ax_v.set_xlabel("local axial strain −ε33 (%)")
+    ax_v.set_ylabel("volumetric strain tr ε (%), dilation +")
+    for ax in (ax_q, ax_v):
+        ax.grid(alpha=0.3)
+    ax_q.legend(fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    return save_figure(fig, out, dpi)
+
+
+# --------------------------------------------------------------------------------------
+# top force and volumetric strain per load step (paper Figs. 14d, 15d)
+
+
+def global_response(
+    runs: Mapping[str, xr.Dataset],
+    out: str | Path,
+    *,
+    path_label: str,
+    marked_steps=(),
+    figsize=(10.0, 4.2),
+    dpi: int = 120,
+) -> Path:
+    """Top force (compression positive, kN) and specimen volumetric strain against load step."""
+    fig, (ax_f, ax_v) = plt.subplots(1, 2, figsize=figsize)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.13, top=0.88, wspace=0.28)
+    reference = next(iter(runs.values()))
+    for ax in (ax_f, ax_v):
+        _shade_unloading(ax, reference["phase"].values, reference["step"].values)
+        for step in marked_steps:
+            ax.axvline(step, color="0.5", linewidth=0.8, linestyle="--")
+    for k, (label, ds) in enumerate(runs.items()):
+        s = style(k)
+        ax_f.plot(ds["step"].values, -1e-3 * ds["top_force"].values, label=label, **s)
+        ax_v.plot(ds["step"].values, 100 * ds["volumetric_strain"].values, label=label, **s)
+    ax_f.set_ylabel("top force, compression + (kN)")
+    ax_v.set_ylabel("volumetric strain (%), dilation +")
+    for ax in (ax_f, ax_v):
+        ax.set_xlabel("load step")
+        ax.grid(alpha=0.3)
+    if len(marked_steps):
+        ax_f.text(0.99, 0.02, "dashed: steps " + ", ".join(str(s) for s in marked_steps) + " (field figures)",
+                  transform=ax_f.transAxes, ha="right", va="bottom", fontsize=7, color="0.4")
+    ax_f.legend(fontsize=8)
+    fig.suptitle(f"{path_label}: top force and volumetric strain", fontsize=10)
+    return save_figure(fig, out, dpi)
+
+
+# --------------------------------------------------------------------------------------
+# training curves (paper Fig. 8)
+
+
+def training_curves(
+    curves: Mapping[str, pd.DataFrame],
+    out: str | Path,
+    *,
+    figsize=(10.0, 4.2),
+    dpi: int = 120,
+) -> Path:
+    """One panel per network; each curve table has columns epoch, train_loss, val_loss.
+
+    ``curves`` keys are 'panel title|series label' (e.g. 'NNσ|with history'); series in the
+    same panel share its axes.
+    """
+    panels: dict[str, list[tuple[str, pd.DataFrame]]] = {}
+    for key, table in curves.items():
+        panel, _, series = key.partition("|")
+        missing = {"epoch", "train_loss", "val_loss"} - set(table.columns)
+        if missing:
+            raise ValueError(f"training curve '{key}' lacks columns {sorted(missing)}")
+        panels.setdefault(panel, []).append((series, table))
+    fig, axes = plt.subplots(1, len(panels), figsize=figsize, squeeze=False)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.13, top=0.85, wspace=0.25)
+    for ax, (panel, series_list) in zip(axes[0], panels.items()):
+        for k, (series, table) in enumerate(series_list):
+            colour = style(k + 1)["color"]
+            suffix = f" ({series})" if series else ""
+            ax.plot(table["epoch"], table["train_loss"], color=colour, linestyle="-", label=f"training{suffix}")
+            ax.plot(table["epoch"], table["val_loss"], color=colour, linestyle="--", label=f"held out{suffix}")
+        ax.set_yscale("log")
+        ax.set_xlabel("epoch")
+        ax.set_ylabel("MAE loss (scaled targets)")
+        ax.set_title(panel)
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+    fig.suptitle("Training and held-out loss per epoch", fontsize=10)
+    return save_figure(fig, out, dpi)
+
+
+# --------------------------------------------------------------------------------------
+# speed vs error
+
+
+def speed_vs_error(
+    table: pd.DataFrame,
+    out: str | Path,
+    *,
+    errors: Mapping[str, str],
+    figsize=(10.0, 4.5),
+    dpi: int = 120,
+) -> Path:
+    """Wall time (log axis) against error to the reference, one point per run.
+
+    ``table`` has a 'label' and a 'wall_time_s' column and one column per entry of
+    ``errors`` ({column: axis label}); one panel per error measure.
+    """
+    fig, axes = plt.subplots(1, len(errors), figsize=figsize, squeeze=False)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.13, top=0.88, wspace=0.25)
+    for ax, (column, axis_label) in zip(axes[0], errors.items()):
+        for k, row in enumerate(table.itertuples(index=False)):
+            s = style(k)
+            error = getattr(row, column)
+            ax.scatter(error, row.wall_time_s, color=s["color"], marker=s["marker"] or "*",
+                       s=120 if k == 0 else 60, edgecolors="k", linewidths=0.5, zorder=3, label=row.label)
+            ax.annotate(row.label, (error, row.wall_time_s), textcoords="offset points", xytext=(6, 4), fontsize=7)
+        ax.set_yscale("log")
+        ax.set_xlabel(axis_label)
+        ax.set_ylabel("wall time of the run (s)")
+        ax.grid(alpha=0.3, which="both")
+        lo, hi = ax.get_xlim()
+        ax.set_xlim(min(lo, 0.0) - 0.02 * (hi - lo), hi + 0.25 * (hi - lo))
+        wt = table["wall_time_s"].to_numpy(dtype=float)
+        ax.set_ylim(wt.min() / 3, wt.max() * 3)
+    axes[0][0].legend(fontsize=7, loc="best")
+    fig.suptitle("Speed vs error: each point one run on this machine (reference at error 0)", fontsize=10)
+    return save_figure(fig, out, dpi)

@@ -1,0 +1,76 @@
+"""Scalar quantities drawn in the figures, from the stored Voigt vectors.
+
+Stored conventions (see ``tensors``): stress in Pa, tension positive; strain tensorial,
+tension positive; Voigt order 11, 22, 33, 23, 13, 12; axis 3 (z) is axial.
+
+Plotting conventions, chosen so a triaxial compression test reads the way soil mechanics
+draws it:
+
+* deviatoric stress ``q = sqrt(3 J2)``, signed positive when the axial stress is more
+  compressive than the mean lateral stress (``(σ11 + σ22)/2 − σ33 > 0``) — in triaxial
+  compression q = σ_axial − σ_radial, compression positive, and an unloading that reaches
+  extension shows as negative q instead of folding back;
+* mean stress ``p = −tr σ / 3`` (compression positive);
+* local axial strain ``−ε33`` (compression positive, as ``axial_strain`` in the files);
+* volumetric strain ``tr ε`` (tension/dilation positive, as ``volumetric_strain`` in the files);
+* equivalent shear strain ``ε_s = sqrt(2/3 e:e)``, ``e = ε − tr ε / 3 I`` (off-diagonal
+  entries count twice); for uniaxial isochoric straining it equals the axial strain.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_SHEAR_WEIGHT = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0])
+
+
+def _deviator(v: np.ndarray) -> np.ndarray:
+    v = np.asarray(v, dtype=float)
+    mean = v[..., :3].mean(axis=-1, keepdims=True)
+    dev = v.copy()
+    dev[..., :3] -= mean
+    return dev
+
+
+def mean_stress(stress: np.ndarray) -> np.ndarray:
+    """p = −tr σ / 3, compression positive; [..., 6] -> [...]."""
+    return -np.asarray(stress, dtype=float)[..., :3].mean(axis=-1)
+
+
+def deviatoric_stress(stress: np.ndarray) -> np.ndarray:
+    """Signed q = ±sqrt(3 J2); positive when the axial (33) stress is the most compressive."""
+    s = _deviator(stress)
+    j2 = 0.5 * np.sum(_SHEAR_WEIGHT * s**2, axis=-1)
+    stress = np.asarray(stress, dtype=float)
+    sign = np.where(0.5 * (stress[..., 0] + stress[..., 1]) - stress[..., 2] >= 0.0, 1.0, -1.0)
+    return sign * np.sqrt(3.0 * j2)
+
+
+def volumetric_strain(strain: np.ndarray) -> np.ndarray:
+    """tr ε, tension (dilation) positive; [..., 6] -> [...]."""
+    return np.asarray(strain, dtype=float)[..., :3].sum(axis=-1)
+
+
+def local_axial_strain(strain: np.ndarray) -> np.ndarray:
+    """−ε33, compression positive; [..., 6] -> [...]."""
+    return -np.asarray(strain, dtype=float)[..., 2]
+
+
+def equivalent_shear_strain(strain: np.ndarray) -> np.ndarray:
+    """ε_s = sqrt(2/3 e:e) of the tensorial strain; [..., 6] -> [...]."""
+    e = _deviator(strain)
+    return np.sqrt(2.0 / 3.0 * np.sum(_SHEAR_WEIGHT * e**2, axis=-1))
+
+
+def stress_error_per_point(stress: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Mean absolute stress error of each Gauss point over steps and the six components.
+
+    stress, reference: [step, gp, 6] in Pa -> [gp] in Pa. The FEM–ML stage's ``metrics``
+    module holds the metrics of the accuracy table; this is the quantity the error map
+    colours its points by (the paper's Fig. 10 'absolute error' per Gauss point).
+    """
+    stress = np.asarray(stress, dtype=float)
+    reference = np.asarray(reference, dtype=float)
+    if stress.shape != reference.shape:
+        raise ValueError(f"stress {stress.shape} and reference {reference.shape} differ in shape")
+    return np.abs(stress - reference).mean(axis=(0, 2))
