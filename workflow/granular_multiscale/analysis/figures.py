@@ -227,7 +227,7 @@ def training_curves(
     figsize=(10.0, 4.2),
     dpi: int = 120,
 ) -> Path:
-    """One panel per network; each curve table has columns epoch, train_loss, val_loss.
+    """One panel per network; each curve table has columns epoch, train_loss, heldout_loss.
 
     ``curves`` keys are 'panel title|series label' (e.g. 'NNσ|with history'); series in the
     same panel share its axes.
@@ -235,7 +235,7 @@ def training_curves(
     panels: dict[str, list[tuple[str, pd.DataFrame]]] = {}
     for key, table in curves.items():
         panel, _, series = key.partition("|")
-        missing = {"epoch", "train_loss", "val_loss"} - set(table.columns)
+        missing = {"epoch", "train_loss", "heldout_loss"} - set(table.columns)
         if missing:
             raise ValueError(f"training curve '{key}' lacks columns {sorted(missing)}")
         panels.setdefault(panel, []).append((series, table))
@@ -246,7 +246,7 @@ def training_curves(
             colour = style(k + 1)["color"]
             suffix = f" ({series})" if series else ""
             ax.plot(table["epoch"], table["train_loss"], color=colour, linestyle="-", label=f"training{suffix}")
-            ax.plot(table["epoch"], table["val_loss"], color=colour, linestyle="--", label=f"held out{suffix}")
+            ax.plot(table["epoch"], table["heldout_loss"], color=colour, linestyle="--", label=f"held out{suffix}")
         ax.set_yscale("log")
         ax.set_xlabel("epoch")
         ax.set_ylabel("MAE loss (scaled targets)")
