@@ -1,25 +1,363 @@
-"""Conventional triaxial test on a hexahedral specimen (API stub; implementation follows).
+"""Conventional triaxial test on a box-shaped specimen of trilinear hexahedra.
 
     problem = TriaxialProblem.from_config(config)
     problem.n_gauss_points, problem.gp_positions          # [n_gp, 3]; gp = element * 8 + q
-    ds = problem.run(material, load_path, method=..., checkpoint=None, logger=None, progress=True)
+    ds = problem.run(material, load_path, checkpoint=None, logger=None, progress=True)
+    granular_multiscale.data.write_run(ds, path, config)
+
+Boundary conditions (z is the axial direction, specimen [0, Lx]×[0, Ly]×[0, H]):
+
+* bottom face: uz = 0; rough platen: also ux = uy = 0; smooth platen: only the node at
+  the origin (ux = uy = 0) and the node at (Lx, 0, 0) (uy = 0) are pinned against rigid
+  motion, so a homogeneous material deforms homogeneously;
+* top face: uz = −axial_strain · H following the load path (axial strain compression
+  positive); rough platen: also ux = uy = 0;
+* four lateral faces: the constant confining pressure p0 as a traction −p0·n;
+* the material points start from the consolidated stress −p0·1, which is in equilibrium
+  with the confinement at zero displacement (step 0 solves and records this state).
+
+Recorded per step (data contract, see ``granular_multiscale.data``): strains, stresses,
+tangents and history variables at the Gauss points, nodal displacements, axial strain,
+top force (tension positive, = ∫σzz over the top face = the platen reaction), volumetric
+strain, Newton iterations and residual norms, cutbacks, wall time, the load phase and
+whatever the material's ``step_info()`` reports.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import logging
+import os
+import pickle
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from ..history import HIST, history_from_sequence
+from ..paths import LoadPath
+from ..tensors import COMP, TCOMP, tangent_to_upper
+from .assembly import POINTS_PER_ELEMENT, GaussPointOperators
+from .mesh import box_mesh, face_nodes, lateral_facets
+from .newton import (
+    Converged,
+    ConvergenceError,
+    DirichletSystem,
+    NewtonSettings,
+    StepFailed,
+    Timers,
+    newton_solve,
+)
+
+CHECKPOINT_VERSION = 1
+
 
 class TriaxialProblem:
+    def __init__(
+        self,
+        size=(0.5, 0.5, 1.0),
+        elements=(2, 2, 4),
+        confining_pressure: float = 1.0e5,
+        platen: str = "rough",
+        newton: NewtonSettings | None = None,
+    ):
+        if platen not in ("rough", "smooth"):
+            raise ValueError(f"specimen.platen must be 'rough' or 'smooth', got {platen!r}")
+        if not confining_pressure > 0:
+            raise ValueError(f"specimen.confining_pressure must be > 0, got {confining_pressure}")
+        self.size = tuple(float(v) for v in size)
+        self.elements = tuple(int(v) for v in elements)
+        self.confining_pressure = float(confining_pressure)
+        self.platen = platen
+        self.newton = newton or NewtonSettings()
+
+        self.mesh = box_mesh(self.size, self.elements)
+        self.ops = GaussPointOperators(self.mesh)
+        self.faces = face_nodes(self.mesh, self.size)
+        self.height = self.size[2]
+        self.top_area = self.size[0] * self.size[1]
+        self.volume = self.top_area * self.height
+        self.f_ext = self.ops.pressure_load(lateral_facets(self.mesh, self.size), self.confining_pressure)
+
+        dofs = self.ops.node_dofs
+        bottom, top = self.faces["bottom"], self.faces["top"]
+        fixed = [dofs(bottom, 2)]
+        if platen == "rough":
+            fixed += [dofs(bottom, 0), dofs(bottom, 1), dofs(top, 0), dofs(top, 1)]
+        else:
+            origin = self._node_at((0.0, 0.0, 0.0))
+            x_corner = self._node_at((self.size[0], 0.0, 0.0))
+            fixed += [dofs(origin, 0), dofs(origin, 1), dofs(x_corner, 1)]
+        self.fixed_dofs = np.unique(np.concatenate(fixed))
+        self.top_dofs = dofs(top, 2)  # axial displacement prescribed by the load path
+        self.system = DirichletSystem(self.ops, np.concatenate([self.fixed_dofs, self.top_dofs]))
+        self._gp_positions = self.ops.gauss_point_positions()
+
     @classmethod
     def from_config(cls, config: dict) -> "TriaxialProblem":
-        raise NotImplementedError("TriaxialProblem is being implemented")
+        spec = config["specimen"]
+        return cls(
+            size=spec["size"],
+            elements=spec["elements"],
+            confining_pressure=spec["confining_pressure"],
+            platen=spec["platen"],
+            newton=NewtonSettings.from_config(config),
+        )
+
+    # -- geometry ---------------------------------------------------------------------
+    def _node_at(self, x) -> np.ndarray:
+        d = np.linalg.norm(self.mesh.p.T - np.asarray(x), axis=1)
+        return np.array([int(np.argmin(d))])
 
     @property
     def n_gauss_points(self) -> int:
-        raise NotImplementedError
+        return self.ops.n_gauss_points
 
     @property
-    def gp_positions(self):
-        raise NotImplementedError
+    def n_elements(self) -> int:
+        return self.ops.n_elements
 
-    def run(self, material, load_path, method="elastoplastic", checkpoint=None, logger=None, progress=True):
-        raise NotImplementedError
+    @property
+    def gp_positions(self) -> np.ndarray:
+        return self._gp_positions.copy()
+
+    @property
+    def node_positions(self) -> np.ndarray:
+        return self.mesh.p.T.copy()
+
+    @property
+    def initial_stress(self) -> np.ndarray:
+        """The consolidated isotropic state −p0·1 (Voigt) the material points start from."""
+        return -self.confining_pressure * np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
+
+    def prescribed_values(self, axial_strain: float) -> np.ndarray:
+        """Values of the constrained dofs (system order) at an axial strain (compression positive)."""
+        values = np.zeros(self.system.constrained.size)
+        values[np.isin(self.system.constrained, self.top_dofs)] = -axial_strain * self.height
+        return values
+
+    def top_force(self, residual: np.ndarray) -> float:
+        """Platen reaction in N, tension positive: Σ over the top nodes of (f_int − f_ext)_z."""
+        return float(residual[self.top_dofs].sum())
+
+    def volumetric_strain(self, strain: np.ndarray) -> float:
+        """Volume change of the specimen / volume (tension positive), = mean trace of ε."""
+        return float(self.ops.volume_average(strain[:, :3].sum(axis=1)))
+
+    def signature(self, material, load_path: LoadPath) -> str:
+        """Identifies a run (problem, path, material kind) so a checkpoint is only reused for the same run."""
+        key = {
+            "size": self.size,
+            "elements": self.elements,
+            "confining_pressure": self.confining_pressure,
+            "platen": self.platen,
+            "newton": self.newton.__dict__,
+            "path": [load_path.name, [list(s) for s in load_path.segments]],
+            "material": [type(material).__name__, material.n_points],
+            "version": CHECKPOINT_VERSION,
+        }
+        return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()
+
+    # -- solving ----------------------------------------------------------------------
+    def _solve_step(self, material, step: int, a_from: float, a_to: float, u: np.ndarray,
+                    previous: Converged | None, timers: Timers):
+        """Advance from axial strain a_from to a_to, halving on failure; commits every sub-step."""
+        stats = {"cutbacks": 0, "iterations": 0, "last": None}
+
+        def advance(lo: float, hi: float, depth: int, u_start, prev):
+            try:
+                result = newton_solve(self.ops, self.system, material, self.f_ext, u_start,
+                                      self.prescribed_values(hi), self.newton, prev, timers)
+            except StepFailed as error:
+                if depth >= self.newton.max_cutbacks:
+                    raise ConvergenceError(
+                        f"load step {step} (axial strain {a_from:.6g} -> {a_to:.6g}) did not converge after "
+                        f"{depth} cutbacks (sub-step {lo:.6g} -> {hi:.6g}): {error}"
+                    ) from error
+                stats["cutbacks"] += 1
+                mid = 0.5 * (lo + hi)
+                half = advance(lo, mid, depth + 1, u_start, prev)
+                return advance(mid, hi, depth + 1, half.u, half)
+            material.commit()
+            stats["iterations"] += result.iterations
+            stats["last"] = result
+            return result
+
+        result = advance(a_from, a_to, 0, u, previous)
+        return result, stats
+
+    def run(self, material, load_path: LoadPath, method: str | None = None, checkpoint=None,
+            logger: logging.Logger | None = None, progress: bool = True) -> xr.Dataset:
+        """Run the load path; returns the data-contract Dataset (write it with data.write_run)."""
+        logger = logger or logging.getLogger("granular_multiscale.fem")
+        if material.n_points != self.n_gauss_points:
+            raise ValueError(
+                f"material set has {material.n_points} points, the mesh {self.n_gauss_points} Gauss points"
+            )
+        method = method or getattr(material, "method", "material")
+        axial = load_path.axial_strain()
+        phases = load_path.phase()
+        signature = self.signature(material, load_path)
+        checkpoint = Path(checkpoint) if checkpoint else None
+
+        records: dict[str, list] = {k: [] for k in (
+            "strain", "stress", "tangent", "displacement", "axial_strain", "top_force", "volumetric_strain",
+            "newton_iterations", "material_evaluations", "residual_norm", "residual_reference", "cutbacks",
+            "wall_time", "step_info")}
+        u = np.zeros(self.ops.n_dofs)
+        previous: Converged | None = None
+        first = 0
+        timers = Timers()
+        if checkpoint is not None and checkpoint.exists():
+            saved = _load_checkpoint(checkpoint)
+            if saved is not None and saved["signature"] == signature:
+                records, u, previous = saved["records"], saved["u"], saved["previous"]
+                material.set_state(saved["material_state"])
+                first = saved["step"] + 1
+                logger.info("resuming from checkpoint %s after step %d", checkpoint, saved["step"])
+            else:
+                logger.warning("checkpoint %s belongs to another run (or is unreadable); starting afresh", checkpoint)
+
+        t_run = time.perf_counter()
+        for step in range(first, load_path.n_steps + 1):
+            t0 = time.perf_counter()
+            evaluations_before = timers.evaluations
+            a_from = axial[step - 1] if step > 0 else 0.0
+            result, stats = self._solve_step(material, step, a_from, axial[step], u, previous, timers)
+            u, previous = result.u, result
+            info = material.step_info() or {}
+            wall = time.perf_counter() - t0
+
+            records["strain"].append(result.strain)
+            records["stress"].append(result.stress)
+            records["tangent"].append(tangent_to_upper(result.tangent))
+            records["displacement"].append(self.ops.nodal(u))
+            records["axial_strain"].append(axial[step])
+            records["top_force"].append(self.top_force(result.residual))
+            records["volumetric_strain"].append(self.volumetric_strain(result.strain))
+            records["newton_iterations"].append(stats["iterations"])
+            records["material_evaluations"].append(timers.evaluations - evaluations_before)
+            records["residual_norm"].append(list(result.residual_norms))
+            records["residual_reference"].append(result.reference)
+            records["cutbacks"].append(stats["cutbacks"])
+            records["wall_time"].append(wall)
+            records["step_info"].append(dict(info))
+            if checkpoint is not None:
+                _save_checkpoint(checkpoint, {
+                    "signature": signature, "step": step, "records": records, "u": u,
+                    "previous": previous, "material_state": material.get_state(),
+                })
+            if progress:
+                logger.info(
+                    "step %3d/%d %-9s axial strain %.4f %%  iterations %2d  residual %.2e  cutbacks %d  %.2f s",
+                    step, load_path.n_steps, phases[step], 100 * axial[step], stats["iterations"],
+                    result.residual_norms[-1] / result.reference, stats["cutbacks"], wall,
+                )
+        total = time.perf_counter() - t_run
+        ds = self._dataset(records, load_path, method)
+        ds.attrs.update({f"time_{k}": v for k, v in timers.as_dict().items()})
+        ds.attrs["time_run_s"] = total
+        if checkpoint is not None:
+            checkpoint.unlink(missing_ok=True)
+        return ds
+
+    # -- output -----------------------------------------------------------------------
+    def _dataset(self, rec: dict, load_path: LoadPath, method: str) -> xr.Dataset:
+        n_steps = len(rec["axial_strain"])
+        strain = np.asarray(rec["strain"])
+        longest = max(len(r) for r in rec["residual_norm"])
+        residuals = np.full((n_steps, longest), np.nan)
+        for k, r in enumerate(rec["residual_norm"]):
+            residuals[k, : len(r)] = r
+        step = np.arange(n_steps)
+        coords = {
+            "step": step,
+            "gp": np.arange(self.n_gauss_points),
+            "comp": list(COMP),
+            "tcomp": list(TCOMP),
+            "hist": list(HIST),
+            "node": np.arange(self.mesh.p.shape[1]),
+            "xyz": ["x", "y", "z"],
+            "iteration": np.arange(longest),
+        }
+        v = {
+            "strain": (("step", "gp", "comp"), strain, "1", "total small strain, tensorial shear, tension positive"),
+            "stress": (("step", "gp", "comp"), np.asarray(rec["stress"]), "Pa", "Cauchy stress, tension positive"),
+            "tangent": (("step", "gp", "tcomp"), np.asarray(rec["tangent"]), "Pa",
+                        "upper triangle of the Voigt tangent d(stress)/d(engineering strain) of the converged state"),
+            "history": (("step", "gp", "hist"), history_from_sequence(strain), "1",
+                        "history variables phi1-phi3 of the converged strains"),
+            "gp_position": (("gp", "xyz"), self.gp_positions, "m", "Gauss point coordinates (gp = element*8 + q)"),
+            "node_position": (("node", "xyz"), self.node_positions, "m", "node coordinates"),
+            "displacement": (("step", "node", "xyz"), np.asarray(rec["displacement"]), "m", "nodal displacement"),
+            "axial_strain": (("step",), np.asarray(rec["axial_strain"]), "1",
+                             "prescribed axial strain, compression positive (top uz = -axial_strain * H)"),
+            "top_force": (("step",), np.asarray(rec["top_force"]), "N",
+                          "axial platen reaction, tension positive (= integral of sigma_zz over the top face)"),
+            "volumetric_strain": (("step",), np.asarray(rec["volumetric_strain"]), "1",
+                                  "volume change / volume of the specimen, tension positive"),
+            "newton_iterations": (("step",), np.asarray(rec["newton_iterations"], dtype=np.int64), "1",
+                                  "Newton corrections of the converged (sub-)steps"),
+            "material_evaluations": (("step",), np.asarray(rec["material_evaluations"], dtype=np.int64), "1",
+                                     "material-set evaluations, failed attempts included"),
+            "residual_norm": (("step", "iteration"), residuals, "N",
+                              "norm of the out-of-balance force on free dofs per iteration of the last "
+                              "(sub-)step (iteration 0 = after the predictor); NaN-padded"),
+            "residual_reference": (("step",), np.asarray(rec["residual_reference"]), "N",
+                                   "max(|f_ext|, |reaction|): convergence when residual_norm <= tolerance * this"),
+            "cutbacks": (("step",), np.asarray(rec["cutbacks"], dtype=np.int64), "1", "times the step was halved"),
+            "wall_time": (("step",), np.asarray(rec["wall_time"]), "s", "wall time of the step"),
+            "phase": (("step",), np.asarray(load_path.phase()[:n_steps], dtype=str), "",
+                      "initial, loading, unloading or reloading"),
+        }
+        info_keys = sorted({k for d in rec["step_info"] for k in d})
+        for key in info_keys:
+            if key in v:
+                raise ValueError(f"material step_info key {key!r} clashes with a data-contract variable")
+            values = np.asarray([d.get(key, np.nan) for d in rec["step_info"]], dtype=float)
+            v[key] = (("step",), values, "", f"material step_info '{key}'")
+        data_vars = {}
+        for name, (dims, values, units, description) in v.items():
+            attrs = {"description": description}
+            if units:
+                attrs["units"] = units
+            data_vars[name] = xr.Variable(dims, values, attrs)
+        return xr.Dataset(
+            data_vars,
+            coords=coords,
+            attrs={
+                "method": method,
+                "load_path": load_path.name,
+                "load_path_segments": json.dumps([list(s) for s in load_path.segments]),
+                "specimen_size_m": list(self.size),
+                "specimen_elements": list(self.elements),
+                "confining_pressure_Pa": self.confining_pressure,
+                "platen": self.platen,
+                "newton_tolerance": self.newton.tolerance,
+                "gauss_points_per_element": POINTS_PER_ELEMENT,
+            },
+        )
+
+
+def _save_checkpoint(path: Path, payload: dict) -> None:
+    """Pickle atomically (temporary file + rename): a kill mid-write keeps the previous checkpoint."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            pickle.dump(payload, f, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _load_checkpoint(path: Path) -> dict | None:
+    try:
+        with open(path, "rb") as f:
+            return pickle.load(f)
+    except Exception:
+        return None

@@ -1,0 +1,144 @@
+"""Gauss-point operators of a small-strain hexahedral discretisation.
+
+The basis (shape function gradients, Jacobians, quadrature weights, dof numbering) comes
+from scikit-fem: ``Basis(mesh, ElementVector(ElementHex1()), intorder=3)``, 2×2×2 Gauss.
+Residual and stiffness are then assembled here with numpy batched products and a
+precomputed scatter into a fixed CSR pattern, not with ``BilinearForm``: the tangent is a
+different 6×6 matrix at every Gauss point, changes every Newton iteration, and
+``BilinearForm.assemble`` with such a per-point coefficient rebuilds the COO triplets and
+the sparsity pattern on every call (measured in bench/bench_fem.py: about 10× slower at
+the paper mesh). The operators below are computed once per mesh:
+
+    B[e, q, :, i]  engineering-strain operator: ε_eng(e, q) = B[e, q] @ u[dofs[e]]
+    dV[e, q]       quadrature weight × Jacobian determinant
+
+so that   f_int = Σ_eq dV Bᵀ σ    and    K = Σ_eq dV Bᵀ D B.
+
+Gauss point index = element * 8 + quadrature index (the order of ``basis.dx``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from skfem import Basis, ElementHex1, ElementVector, FacetBasis, LinearForm
+from skfem.helpers import dot
+
+from ..tensors import ENGINEERING_FACTOR
+
+GAUSS_ORDER = 3  # scikit-fem intorder giving the 2×2×2 Gauss rule on hexahedra
+POINTS_PER_ELEMENT = 8
+
+
+def vector_basis(mesh) -> Basis:
+    basis = Basis(mesh, ElementVector(ElementHex1()), intorder=GAUSS_ORDER)
+    if basis.X.shape[1] != POINTS_PER_ELEMENT:
+        raise RuntimeError(f"expected the 2×2×2 Gauss rule, scikit-fem gave {basis.X.shape[1]} points")
+    return basis
+
+
+def strain_operator(basis: Basis) -> np.ndarray:
+    """B[e, q, 6, n_local] mapping element dofs to the engineering strain (Voigt 11,22,33,23,13,12)."""
+    n_local = basis.Nbfun
+    n_el, n_q = basis.dx.shape
+    B = np.empty((n_el, n_q, 6, n_local))
+    for i in range(n_local):
+        G = basis.basis[i][0].grad  # [component, direction, element, point] = ∂φ_i,c/∂x_j
+        B[:, :, 0, i] = G[0, 0]
+        B[:, :, 1, i] = G[1, 1]
+        B[:, :, 2, i] = G[2, 2]
+        B[:, :, 3, i] = G[1, 2] + G[2, 1]
+        B[:, :, 4, i] = G[0, 2] + G[2, 0]
+        B[:, :, 5, i] = G[0, 1] + G[1, 0]
+    return B
+
+
+class GaussPointOperators:
+    """Strain, internal force and stiffness of a vector hexahedral basis at its Gauss points."""
+
+    def __init__(self, mesh):
+        self.mesh = mesh
+        self.basis = vector_basis(mesh)
+        self.n_dofs = self.basis.N
+        self.element_dofs = np.ascontiguousarray(self.basis.element_dofs.T)  # [n_el, 24]
+        self.n_elements, self.n_local = self.element_dofs.shape
+        self.B = strain_operator(self.basis)  # [n_el, 8, 6, 24]
+        self.dV = np.asarray(self.basis.dx)  # [n_el, 8]
+        self.n_gauss_points = self.dV.size
+        self._BT_dV = np.ascontiguousarray(
+            (self.B * self.dV[:, :, None, None]).reshape(self.n_elements, -1, self.n_local).transpose(0, 2, 1)
+        )  # [n_el, 24, 8*6]
+        self._build_pattern()
+
+    # -- fixed sparsity pattern -------------------------------------------------------
+    def _build_pattern(self) -> None:
+        rows = np.repeat(self.element_dofs, self.n_local, axis=1).ravel()
+        cols = np.tile(self.element_dofs, (1, self.n_local)).ravel()
+        keys = rows.astype(np.int64) * self.n_dofs + cols
+        unique, self._scatter = np.unique(keys, return_inverse=True)
+        self.nnz = unique.size
+        self._indices = (unique % self.n_dofs).astype(np.int32)
+        self._indptr = np.searchsorted(unique // self.n_dofs, np.arange(self.n_dofs + 1)).astype(np.int32)
+        self._row_of_entry = (unique // self.n_dofs).astype(np.int64)
+        self._col_of_entry = self._indices.astype(np.int64)
+
+    def csr(self, data: np.ndarray) -> sp.csr_matrix:
+        return sp.csr_matrix((data, self._indices, self._indptr), shape=(self.n_dofs, self.n_dofs))
+
+    def entries_touching(self, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Masks over the CSR data: entries in a row or column of `dofs`, and their diagonal entries."""
+        is_dof = np.zeros(self.n_dofs, dtype=bool)
+        is_dof[dofs] = True
+        touching = is_dof[self._row_of_entry] | is_dof[self._col_of_entry]
+        diagonal = is_dof[self._row_of_entry] & (self._row_of_entry == self._col_of_entry)
+        return touching, diagonal
+
+    # -- operators --------------------------------------------------------------------
+    def strain(self, u: np.ndarray) -> np.ndarray:
+        """Nodal displacements [n_dofs] -> tensorial strain [n_gp, 6]."""
+        ue = u[self.element_dofs]  # [n_el, 24]
+        eng = np.einsum("eqai,ei->eqa", self.B, ue, optimize=True)
+        return eng.reshape(-1, 6) / ENGINEERING_FACTOR
+
+    def internal_force(self, stress: np.ndarray) -> np.ndarray:
+        """Stress [n_gp, 6] (Pa) -> consistent nodal forces f_int = Σ dV Bᵀ σ [n_dofs]."""
+        s = stress.reshape(self.n_elements, -1, 1)  # [n_el, 8*6, 1]
+        fe = np.matmul(self._BT_dV, s)[:, :, 0]  # [n_el, 24]
+        return np.bincount(self.element_dofs.ravel(), weights=fe.ravel(), minlength=self.n_dofs)
+
+    def stiffness_data(self, tangent: np.ndarray) -> np.ndarray:
+        """Tangent [n_gp, 6, 6] -> CSR data of K = Σ dV Bᵀ D B on the fixed pattern."""
+        B = self.B.reshape(-1, 6, self.n_local)  # [n_gp, 6, 24]
+        DB = np.matmul(tangent, B).reshape(self.n_elements, -1, self.n_local)  # [n_el, 48, 24]
+        Ke = np.matmul(self._BT_dV, DB)  # [n_el, 24, 24]
+        return np.bincount(self._scatter, weights=Ke.ravel(), minlength=self.nnz)
+
+    def stiffness(self, tangent: np.ndarray) -> sp.csr_matrix:
+        return self.csr(self.stiffness_data(tangent))
+
+    def gauss_point_positions(self) -> np.ndarray:
+        """[n_gp, 3] coordinates of the Gauss points (gp = element * 8 + q)."""
+        x = self.basis.mapping.F(self.basis.X)  # [3, n_el, 8]
+        return np.asarray(x).reshape(3, -1).T.copy()
+
+    def volume_average(self, field: np.ndarray) -> np.ndarray:
+        """Volume average of a Gauss-point field [n_gp, ...]."""
+        w = self.dV.ravel()
+        return np.tensordot(w, field, axes=(0, 0)) / w.sum()
+
+    def nodal(self, u: np.ndarray) -> np.ndarray:
+        """Dof vector -> [n_nodes, 3]."""
+        return u[self.basis.nodal_dofs.T]
+
+    def node_dofs(self, nodes: np.ndarray, component: int) -> np.ndarray:
+        return self.basis.nodal_dofs[component, nodes]
+
+    def pressure_load(self, facets: np.ndarray, pressure: float) -> np.ndarray:
+        """Nodal forces of a uniform pressure (compression positive) on boundary facets: ∫ −p n·v ds."""
+        fbasis = FacetBasis(self.mesh, self.basis.elem, facets=facets, intorder=GAUSS_ORDER)
+
+        @LinearForm
+        def traction(v, w):
+            return -pressure * dot(w.n, v)
+
+        return traction.assemble(fbasis)
