@@ -28,5 +28,7 @@ def reference_run(path):
     return f"{OUT}/{REFERENCE}/{path}.h5"
 
 
-def script(name):
+# Not named `script`: a global of that name shadows the function Snakemake's `script:`
+# directive calls, and every rule with `script:` then fails with a TypeError.
+def script_path(name):
     return str(Path(workflow.basedir) / "scripts" / name)
