@@ -8,6 +8,14 @@ rule fem_elastoplastic:
         f"{OUT}/logs/fem_elastoplastic/{{path}}.log",
     benchmark:
         f"{OUT}/benchmarks/fem_elastoplastic/{{path}}.tsv"
+    params:
+        # what the run depends on, so that editing it in the config re-runs the rule
+        model=lambda wc: {
+            "specimen": config["specimen"],
+            "newton": config["newton"],
+            "elastoplastic": config["elastoplastic"],
+            "segments": config["load_paths"][wc.path]["segments"],
+        },
     threads: 1
     script:
         "../../scripts/run_fem_reference.py"
