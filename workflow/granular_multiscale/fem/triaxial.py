@@ -258,8 +258,15 @@ class TriaxialProblem:
                 )
         total = time.perf_counter() - t_run
         ds = self._dataset(records, load_path, method)
-        ds.attrs.update({f"time_{k}": v for k, v in timers.as_dict().items()})
-        ds.attrs["time_run_s"] = total
+        # cost split of this run (a resumed run counts only the part after the checkpoint)
+        ds.attrs.update({
+            "time_material_s": timers.material,
+            "time_assembly_s": timers.assembly,
+            "time_solve_s": timers.solve,
+            "time_run_s": total,
+            "total_newton_corrections": timers.iterations,
+            "total_material_evaluations": timers.evaluations,
+        })
         if checkpoint is not None:
             checkpoint.unlink(missing_ok=True)
         return ds
