@@ -156,7 +156,7 @@ class TriaxialProblem:
             "platen": self.platen,
             "newton": self.newton.__dict__,
             "path": [load_path.name, [list(s) for s in load_path.segments]],
-            "material": [type(material).__name__, material.n_points],
+            "material": [getattr(material, "method", type(material).__name__), material.n_points],
             "version": CHECKPOINT_VERSION,
         }
         return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()

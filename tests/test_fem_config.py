@@ -1,0 +1,37 @@
+"""Configuration: bad values are rejected naming the key; the FEM sections build the problem."""
+
+import pytest
+
+from granular_multiscale.config import CONFIG_DIR, ConfigError, load_config, validate_config
+from granular_multiscale.fem.triaxial import TriaxialProblem
+
+
+@pytest.mark.parametrize(
+    "config, key",
+    [
+        ({"dem": {"n_spheres": -5}}, "dem.n_spheres"),
+        ({"training_path": "path9"}, "training_path"),
+        ({"newton": {"max_iterations": "ten"}}, "newton.max_iterations"),
+        ({"specimen": {"elements": [2, 2]}}, "specimen.elements"),
+        ({"specimen": {"platen": "sticky"}}, "specimen.platen"),
+        ({"elastoplastic": {"friction": -0.1}}, "elastoplastic.friction"),
+        ({"elastoplastic": {"kinematic_modulus": "stiff"}}, "elastoplastic.kinematic_modulus"),
+        ({"elastoplastic": {"cohesion": 1.0}}, "elastoplastic"),
+    ],
+)
+def test_bad_config_is_rejected_naming_the_key(config, key):
+    with pytest.raises(ConfigError) as error:
+        validate_config(config)
+    assert f"'{key}'" in str(error.value)
+
+
+def test_load_config_override_with_wrong_type_names_the_key():
+    with pytest.raises(ConfigError, match=r"'specimen\.confining_pressure'"):
+        load_config(CONFIG_DIR / "tiny.yaml", overrides={"specimen.confining_pressure": "high"})
+
+
+@pytest.mark.parametrize("name, n_gp", [("tiny.yaml", 16), ("config.yaml", 128), ("paper.yaml", 2000)])
+def test_shipped_configs_build_the_triaxial_problem(name, n_gp):
+    problem = TriaxialProblem.from_config(load_config(CONFIG_DIR / name))
+    assert problem.n_gauss_points == n_gp
+    assert problem.confining_pressure == 1.0e5

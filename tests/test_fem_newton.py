@@ -1,0 +1,174 @@
+"""Newton solver: quadratic convergence, cutbacks, FE vs point-wise material, checkpoint/resume."""
+
+import logging
+
+import numpy as np
+import pytest
+
+from granular_multiscale.fem.newton import ConvergenceError, NewtonSettings
+from granular_multiscale.fem.triaxial import TriaxialProblem
+from granular_multiscale.materials import Elastoplastic, LinearElastic, MaterialPointError
+from granular_multiscale.paths import LoadPath
+
+PATH2 = LoadPath("path2", ((9, 0.009), (6, 0.003), (42, 0.045)))
+SHORT = LoadPath("short", ((4, 0.008), (3, 0.002), (3, 0.01)))
+
+
+def relative_residuals(ds):
+    return ds.residual_norm.values / ds.residual_reference.values[:, None]
+
+
+def test_newton_converges_quadratically_with_consistent_tangent():
+    problem = TriaxialProblem(size=(0.5, 0.5, 1.0), elements=(2, 2, 4), platen="rough")
+    ds = problem.run(Elastoplastic(problem.n_gauss_points, initial_stress=problem.initial_stress), PATH2,
+                     progress=False)
+    assert ds.cutbacks.values.sum() == 0
+    rel = relative_residuals(ds)
+    ratios = []
+    for k in range(1, rel.shape[0]):
+        e = rel[k][np.isfinite(rel[k])]
+        for a, b in zip(e[:-1], e[1:]):
+            if 1e-12 < a < 1e-2 and b > 1e-14:  # asymptotic range, above round-off
+                ratios.append(b / a**2)
+        if k in (1, 10, 16, 30):
+            print(f"step {k:2d} relative residuals: " + "  ".join(f"{x:.2e}" for x in e))
+    ratios = np.array(ratios)
+    print("e_(k+1)/e_k^2:", np.array2string(ratios, precision=3))
+    assert ratios.size >= 10
+    assert ratios.max() < 10.0  # quadratic: e_{k+1} <= C e_k^2
+    assert ds.newton_iterations.values.max() <= 4
+    assert np.all(np.nanmin(rel, axis=1) <= 1e-8)
+
+
+class ElasticTangentElastoplastic(Elastoplastic):
+    """The same model with the elastic (not consistent) tangent: Newton must slow down."""
+
+    def evaluate(self, strain, need_tangent=True):
+        stress, _ = super().evaluate(strain, need_tangent=False)
+        return stress, np.broadcast_to(self.elastic_tangent, (self.n_points, 6, 6)).copy()
+
+
+def test_inconsistent_tangent_converges_only_linearly():
+    problem = TriaxialProblem(elements=(2, 2, 4), newton=NewtonSettings(max_iterations=200))
+    consistent = problem.run(Elastoplastic(problem.n_gauss_points, initial_stress=problem.initial_stress), SHORT,
+                             progress=False)
+    elastic = problem.run(ElasticTangentElastoplastic(problem.n_gauss_points, initial_stress=problem.initial_stress),
+                          SHORT, progress=False)
+    print("iterations consistent", consistent.newton_iterations.values, "elastic", elastic.newton_iterations.values)
+    assert elastic.newton_iterations.values.sum() > 3 * consistent.newton_iterations.values.sum()
+    # both solve the same problem
+    np.testing.assert_allclose(elastic.stress.values, consistent.stress.values, rtol=0, atol=1e-3 * 1e5)
+
+
+def test_fe_gauss_point_equals_point_wise_model_on_homogeneous_run():
+    """Smooth platens: the specimen deforms homogeneously, and the stresses at the Gauss
+    points equal the model driven point-wise through the same strain sequence."""
+    problem = TriaxialProblem(size=(0.5, 0.5, 1.0), elements=(2, 2, 2), platen="smooth")
+    path = LoadPath("loop", ((5, 0.01), (4, 0.002), (5, 0.02)))
+    ds = problem.run(Elastoplastic(problem.n_gauss_points, initial_stress=problem.initial_stress), path,
+                     progress=False)
+    assert ds.cutbacks.values.sum() == 0
+    strain = ds.strain.values
+    np.testing.assert_allclose(strain, np.broadcast_to(strain[:, :1], strain.shape), atol=1e-13)  # homogeneous
+    point = Elastoplastic(1, initial_stress=problem.initial_stress)
+    for k in range(strain.shape[0]):
+        stress, D = point.evaluate(strain[k, :1])
+        point.commit()
+        np.testing.assert_allclose(ds.stress.values[k], np.broadcast_to(stress, (problem.n_gauss_points, 6)),
+                                   rtol=0, atol=1e-6 * 1e5)
+    # the unloading went plastic in reverse and the loop dissipates
+    q = -ds.top_force.values / 0.25 - 1e5
+    assert (ds.plastic_fraction.values[ds.phase.values == "unloading"] > 0).any()
+    assert q[5] > 1.0e5 and q[9] < 0  # unloaded from >100 kPa into extension
+
+
+class FailsBeyondIncrement(LinearElastic):
+    """Linear elastic points that refuse trial strains too far from the converged ones,
+    like an RVE that blows up on a large increment: forces cutbacks."""
+
+    def __init__(self, *args, limit, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.limit = limit
+
+    def evaluate(self, strain, need_tangent=True):
+        jump = np.abs(np.asarray(strain) - self._converged_strain).max(axis=1)
+        if np.any(jump > self.limit):
+            raise MaterialPointError(f"increment too large at Gauss points {np.flatnonzero(jump > self.limit)[:3]}")
+        return super().evaluate(strain, need_tangent)
+
+
+def test_cutbacks_halve_the_step_and_reach_the_same_state():
+    problem = TriaxialProblem(elements=(1, 1, 2), platen="smooth")
+    path = LoadPath("p", ((2, 0.004),))  # increments of 0.2 %
+    reference = problem.run(LinearElastic(16, 5e7, 0.25, initial_stress=problem.initial_stress), path,
+                            progress=False)
+    cut = problem.run(FailsBeyondIncrement(16, 5e7, 0.25, initial_stress=problem.initial_stress, limit=0.0006),
+                      path, progress=False)
+    # 0.2 % fails, 0.1 % fails, 0.05 % passes: 2 halvings on the first try, then the other halves
+    assert cut.cutbacks.values[0] == 0 and cut.cutbacks.values[1] >= 2
+    np.testing.assert_allclose(cut.stress.values, reference.stress.values, rtol=0, atol=1e-9 * 1e5)
+    np.testing.assert_allclose(cut.top_force.values, reference.top_force.values, rtol=1e-12)
+
+
+def test_step_that_never_converges_names_the_load_step():
+    problem = TriaxialProblem(elements=(1, 1, 2), platen="smooth", newton=NewtonSettings(max_cutbacks=2))
+    path = LoadPath("p", ((1, 0.0004), (1, 0.01)))
+    material = FailsBeyondIncrement(16, 5e7, 0.25, initial_stress=problem.initial_stress, limit=0.0006)
+    with pytest.raises(ConvergenceError, match=r"load step 2 .* after 2 cutbacks"):
+        problem.run(material, path, progress=False)
+
+
+class KilledAfter(Elastoplastic):
+    """Simulates a killed run: raises once `commits` commits have happened."""
+
+    def __init__(self, *args, commits, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.commits_left = commits
+
+    def commit(self):
+        if self.commits_left == 0:
+            raise KeyboardInterrupt("simulated kill")
+        self.commits_left -= 1
+        super().commit()
+
+
+def test_checkpoint_resume_gives_the_uninterrupted_result(tmp_path, caplog):
+    problem = TriaxialProblem(elements=(2, 2, 2), platen="rough")
+    checkpoint = tmp_path / "run.ckpt"
+    full = problem.run(Elastoplastic(problem.n_gauss_points, initial_stress=problem.initial_stress), SHORT,
+                       progress=False)
+
+    killed = KilledAfter(problem.n_gauss_points, initial_stress=problem.initial_stress, commits=6)
+    with pytest.raises(KeyboardInterrupt):
+        problem.run(killed, SHORT, checkpoint=checkpoint, progress=False)
+    assert checkpoint.exists()
+
+    with caplog.at_level(logging.INFO, logger="granular_multiscale.fem"):
+        resumed = problem.run(Elastoplastic(problem.n_gauss_points, initial_stress=problem.initial_stress), SHORT,
+                              checkpoint=checkpoint, progress=True)
+    assert "resuming from checkpoint" in caplog.text and "after step 5" in caplog.text
+    assert "step   5/" not in caplog.text and "step   6/" in caplog.text  # steps 0-5 were not recomputed
+    assert not checkpoint.exists()
+    for name in full.data_vars:
+        if name != "wall_time":
+            np.testing.assert_array_equal(resumed[name].values, full[name].values, err_msg=name)
+
+
+def test_checkpoint_of_another_run_is_ignored(tmp_path, caplog):
+    problem = TriaxialProblem(elements=(1, 1, 2))
+    checkpoint = tmp_path / "run.ckpt"
+    killed = KilledAfter(16, initial_stress=problem.initial_stress, commits=3)
+    with pytest.raises(KeyboardInterrupt):
+        problem.run(killed, SHORT, checkpoint=checkpoint, progress=False)
+    other_path = LoadPath("other", ((5, 0.01),))
+    with caplog.at_level(logging.WARNING, logger="granular_multiscale.fem"):
+        ds = problem.run(Elastoplastic(16, initial_stress=problem.initial_stress), other_path, checkpoint=checkpoint,
+                         progress=False)
+    assert "belongs to another run" in caplog.text
+    assert ds.sizes["step"] == 6
+
+
+def test_material_size_must_match_mesh():
+    problem = TriaxialProblem(elements=(1, 1, 2))
+    with pytest.raises(ValueError, match="material set has 8 points, the mesh 16 Gauss points"):
+        problem.run(LinearElastic(8, 5e7, 0.2), SHORT, progress=False)
