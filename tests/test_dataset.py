@@ -1,0 +1,132 @@
+"""Surrogate dataset: split by Gauss point, scaling fitted on training points, features/targets, files."""
+
+import numpy as np
+import pytest
+
+from granular_multiscale.config import load_config
+from granular_multiscale.history import history_from_sequence
+from granular_multiscale.materials.elastoplastic import Elastoplastic
+from granular_multiscale.paths import load_paths_from_config
+from granular_multiscale.surrogate.dataset import (
+    FEATURES,
+    STRAIN_FEATURES,
+    TANGENT_TARGETS,
+    DatasetError,
+    build_dataset,
+    features,
+    read_dataset,
+    scaling,
+    split_gauss_points,
+    split_of,
+    targets,
+    write_dataset,
+)
+from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
+from granular_multiscale.tensors import COMP, TCOMP, tangent_to_upper
+
+
+@pytest.fixture(scope="module")
+def run():
+    config = load_config(overrides={"reference_material": "elastoplastic"})
+    path = load_paths_from_config(config)["path1"]
+    n = 20
+    return material_point_run(Elastoplastic.from_config(n, config), triaxial_strain_paths(path, n, seed=4), path)
+
+
+def test_split_is_seeded_disjoint_and_complete():
+    train, heldout = split_gauss_points(2000, 0.75, seed=7)
+    assert (train.size, heldout.size) == (1500, 500)  # the paper's 1500/500
+    assert np.intersect1d(train, heldout).size == 0
+    np.testing.assert_array_equal(np.sort(np.concatenate([train, heldout])), np.arange(2000))
+    again, _ = split_gauss_points(2000, 0.75, seed=7)
+    np.testing.assert_array_equal(train, again)
+    other, _ = split_gauss_points(2000, 0.75, seed=8)
+    assert not np.array_equal(train, other)
+    # never an empty side, even for tiny meshes
+    t, h = split_gauss_points(2, 0.99, seed=0)
+    assert (t.size, h.size) == (1, 1)
+    with pytest.raises(ValueError, match="train_fraction"):
+        split_gauss_points(10, 1.0, seed=0)
+
+
+def test_dataset_holds_the_run_split_by_gauss_point(run):
+    train, heldout = build_dataset(run, 0.75, seed=3)
+    assert train.sizes["gp"] == 15 and heldout.sizes["gp"] == 5
+    split = split_of(train)
+    np.testing.assert_array_equal(split["train"], train.gp.values)
+    np.testing.assert_array_equal(split["heldout"], heldout.gp.values)
+    np.testing.assert_array_equal(split_of(heldout)["train"], split["train"])
+    assert train.attrs["split"] == "train" and heldout.attrs["split"] == "heldout"
+    # labelled like a run file; values are those of the run at the same (step, gp)
+    assert list(train.comp.values) == list(COMP) and list(train.tcomp.values) == list(TCOMP)
+    gp = int(heldout.gp.values[2])
+    np.testing.assert_array_equal(heldout.stress.sel(gp=gp).values, run.stress.sel(gp=gp).values)
+    np.testing.assert_array_equal(heldout.tangent.sel(gp=gp).values, run.tangent.sel(gp=gp).values)
+    np.testing.assert_allclose(heldout.history.sel(gp=gp).values, history_from_sequence(run.strain.sel(gp=gp).values))
+
+
+def test_features_and_targets_layout(run):
+    train, _ = build_dataset(run, 0.75, seed=3)
+    x = features(train)
+    n_samples = train.sizes["step"] * train.sizes["gp"]
+    assert x.shape == (n_samples, 9) and features(train, use_history=False).shape == (n_samples, 6)
+    assert targets(train, "sigma").shape == (n_samples, 6) and targets(train, "tangent").shape == (n_samples, 21)
+    # sample (step 7, 4th training point) sits at row 7 * n_gp + 3, columns in FEATURES order
+    n_gp = train.sizes["gp"]
+    gp = int(train.gp.values[3])
+    row = 7 * n_gp + 3
+    np.testing.assert_array_equal(x[row, :6], run.strain.sel(step=7, gp=gp).values)
+    np.testing.assert_allclose(x[row, 6:], history_from_sequence(run.strain.sel(gp=gp).values)[7])
+    np.testing.assert_array_equal(targets(train, "tangent")[row], run.tangent.sel(step=7, gp=gp).values)
+    assert list(train.feature.values) == list(FEATURES)
+    assert len(TANGENT_TARGETS) == 21 and STRAIN_FEATURES[3] == "strain_23"
+
+
+def test_scaling_fitted_on_training_points_only(run):
+    train, heldout = build_dataset(run, 0.75, seed=3)
+    for ds in (train, heldout):  # both files carry the same (training) scaling
+        sc = scaling(ds, "sigma")
+        np.testing.assert_array_equal(sc["x_min"], features(train).min(axis=0))
+        np.testing.assert_array_equal(sc["x_max"], features(train).max(axis=0))
+        np.testing.assert_array_equal(sc["y_min"], targets(train, "sigma").min(axis=0))
+    x_scaled = (features(train) - sc["x_min"]) / (sc["x_max"] - sc["x_min"])
+    assert x_scaled.min() == 0.0 and x_scaled.max() == 1.0
+    # held-out points have their own extremes: some fall outside [0, 1] (else the split was not by point)
+    x_ho = (features(heldout) - sc["x_min"]) / (sc["x_max"] - sc["x_min"])
+    assert x_ho.min() < 0.0 or x_ho.max() > 1.0
+    assert scaling(train, "tangent", use_history=False)["x_min"].shape == (6,)
+    assert scaling(train, "tangent")["y_max"].shape == (21,)
+
+
+def test_dataset_file_roundtrip(run, tmp_path):
+    train, heldout = build_dataset(run, 0.75, seed=3)
+    write_dataset(train, tmp_path / "d" / "train.h5")
+    back = read_dataset(tmp_path / "d" / "train.h5")
+    np.testing.assert_array_equal(back.stress.values, train.stress.values)
+    np.testing.assert_array_equal(split_of(back)["heldout"], heldout.gp.values)
+    np.testing.assert_array_equal(features(back), features(train))
+    assert back.stress.attrs["units"] == "Pa"
+    assert not list((tmp_path / "d").glob("*.tmp"))
+    with pytest.raises(DatasetError, match="not found"):
+        read_dataset(tmp_path / "missing.h5")
+
+
+def test_bad_runs_are_named(run):
+    bad = run.copy(deep=True)
+    bad["stress"][5, 3, 2] = np.nan
+    with pytest.raises(DatasetError, match=r"'stress' is not finite at step 5, gp 3"):
+        build_dataset(bad, 0.75, 0, source="ref.h5")
+    with pytest.raises(DatasetError, match="ref.h5: variable 'tangent' missing"):
+        build_dataset(run.drop_vars("tangent"), 0.75, 0, source="ref.h5")
+    reordered = run.assign_coords(comp=["11", "22", "33", "12", "13", "23"])
+    with pytest.raises(DatasetError, match="coordinate 'comp'"):
+        build_dataset(reordered, 0.75, 0)
+
+
+def test_synthetic_run_is_the_material_response(run):
+    # the fixture itself: a fresh elastoplastic point answers the same at step 1
+    config = load_config(overrides={"reference_material": "elastoplastic"})
+    ep = Elastoplastic.from_config(run.sizes["gp"], config)
+    s, D = ep.evaluate(run.strain.sel(step=1).values)
+    np.testing.assert_allclose(run.stress.sel(step=1).values, s)
+    np.testing.assert_allclose(run.tangent.sel(step=1).values, tangent_to_upper(D))

@@ -1,0 +1,241 @@
+"""SurrogateMaterial: batched evaluation, history on commit only, tangents vs finite differences,
+out-of-range inputs counted, state round trip."""
+
+import logging
+
+import numpy as np
+import pytest
+import torch
+
+from granular_multiscale.config import load_config
+from granular_multiscale.history import accumulate, history_variables
+from granular_multiscale.materials.base import MaterialPointError
+from granular_multiscale.materials.elastic import LinearElastic
+from granular_multiscale.materials.elastoplastic import Elastoplastic
+from granular_multiscale.paths import load_paths_from_config
+from granular_multiscale.surrogate.dataset import build_dataset, scaling
+from granular_multiscale.surrogate.material import SurrogateMaterial, method_name
+from granular_multiscale.surrogate.models import SurrogateModel
+from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
+from granular_multiscale.surrogate.training import train
+from granular_multiscale.tensors import ENGINEERING_FACTOR, isotropic_elastic_tangent, tangent_from_upper
+
+CONFIG = load_config(overrides={"reference_material": "elastoplastic"})
+
+
+@pytest.fixture(scope="module")
+def data():
+    path = load_paths_from_config(CONFIG)["path1"]
+    run = material_point_run(Elastoplastic.from_config(12, CONFIG), triaxial_strain_paths(path, 12, seed=2), path)
+    return build_dataset(run, 0.75, seed=0)
+
+
+def untrained(data, kind, use_history=True, seed=0, activation="tanh"):
+    """A randomly initialised network with the dataset's scaling, reloaded in float64 like a real model."""
+    torch.manual_seed(seed)
+    settings = dict(CONFIG["surrogate"], activation=activation)
+    return SurrogateModel.create(kind, use_history, scaling(data[0], kind, use_history), settings)
+
+
+@pytest.fixture(scope="module")
+def models(data, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("models")
+    untrained(data, "sigma").save(folder / "s.pt")
+    untrained(data, "tangent").save(folder / "d.pt")
+    return SurrogateModel.load(folder / "s.pt"), SurrogateModel.load(folder / "d.pt")
+
+
+def state_with_history(n, seed=0):
+    """A converged strain after some loading, its accumulated increment, and a nearby trial strain."""
+    rng = np.random.default_rng(seed)
+    strain_c = np.array([0.003, 0.0028, -0.008, 0.0002, -0.0001, 0.00015]) + rng.normal(scale=5e-4, size=(n, 6))
+    acc_c = np.abs(strain_c) * 1.3 + 1e-4
+    trial = strain_c + rng.normal(scale=4e-4, size=(n, 6))
+    return strain_c, acc_c, trial
+
+
+def finite_difference_tangent(material, strain, h=1e-7):
+    """Central differences of the material's stress wrt the ENGINEERING strain (the solver's convention)."""
+    n = strain.shape[0]
+    fd = np.empty((n, 6, 6))
+    for J in range(6):
+        d = np.zeros(6)
+        d[J] = h / ENGINEERING_FACTOR[J]  # engineering increment h = tensorial increment h / factor
+        plus, _ = material.evaluate(strain + d, need_tangent=False)
+        minus, _ = material.evaluate(strain - d, need_tangent=False)
+        fd[:, :, J] = (plus - minus) / (2 * h)
+    return fd
+
+
+def test_method_names():
+    assert method_name("nn") == "fem_ml_nn"
+    assert method_name("autodiff", use_history=False) == "fem_ml_nohist_autodiff"
+
+
+def test_stress_is_the_network_at_strain_and_trial_history(models):
+    sigma, nd = models
+    strain_c, acc_c, trial = state_with_history(7)
+    mat = SurrogateMaterial(7, sigma, nd, tangent="nn")
+    mat.set_state({"strain": strain_c, "accumulated": acc_c})
+    stress, D = mat.evaluate(trial)
+    phi = history_variables(accumulate(acc_c, strain_c, trial))
+    x = np.concatenate([trial, phi], axis=1)
+    np.testing.assert_allclose(stress, sigma.predict(x), rtol=1e-12)
+    # nn tangent: ND's 21 outputs in Pa, reassembled into the symmetric matrix
+    np.testing.assert_allclose(D, tangent_from_upper(nd.predict(x)), rtol=1e-12)
+    np.testing.assert_array_equal(D, np.swapaxes(D, 1, 2))
+    assert mat.method == "fem_ml_nn"
+
+
+def test_batched_evaluation_has_no_cross_talk(models):
+    sigma, nd = models
+    strain_c, acc_c, trial = state_with_history(9, seed=1)
+    for tangent in ("nn", "autodiff"):
+        batch = SurrogateMaterial(9, sigma, nd, tangent=tangent)
+        batch.set_state({"strain": strain_c, "accumulated": acc_c})
+        s_all, D_all = batch.evaluate(trial)
+        for i in (0, 4, 8):
+            one = SurrogateMaterial(1, sigma, nd, tangent=tangent)
+            one.set_state({"strain": strain_c[i : i + 1], "accumulated": acc_c[i : i + 1]})
+            s1, D1 = one.evaluate(trial[i : i + 1])
+            np.testing.assert_allclose(s1[0], s_all[i], rtol=1e-12, atol=1e-9)
+            np.testing.assert_allclose(D1[0], D_all[i], rtol=1e-10, atol=1e-6)
+
+
+def test_history_advances_on_commit_only(models):
+    sigma, nd = models
+    mat = SurrogateMaterial(3, sigma, nd)
+    loaded = np.tile([0.002, 0.002, -0.006, 0.0, 0.0, 0.0], (3, 1))
+    first, _ = mat.evaluate(loaded)
+    again, _ = mat.evaluate(0.5 * loaded)  # another trial of the same step
+    repeat, _ = mat.evaluate(loaded)
+    np.testing.assert_array_equal(first, repeat)  # trials do not accumulate
+    np.testing.assert_array_equal(mat.history, 0.0)
+    mat.commit()  # the last trial (loaded) is converged now
+    np.testing.assert_allclose(mat.history, history_variables(np.abs(loaded)))
+    # unload back to zero strain: same strain as the fresh state, different stress (the history differs)
+    unloaded, _ = mat.evaluate(np.zeros((3, 6)))
+    fresh = SurrogateMaterial(3, sigma, nd).evaluate(np.zeros((3, 6)))[0]
+    assert np.abs(unloaded - fresh).max() > 1.0  # Pa
+    mat.commit()
+    np.testing.assert_allclose(mat.history, history_variables(2 * np.abs(loaded)))
+    with pytest.raises(RuntimeError, match="before evaluate"):
+        mat.commit()
+
+
+def test_autodiff_tangent_matches_finite_differences(models):
+    """Exact Jacobian including dφ/dε; columns act on engineering shear strain."""
+    sigma, _ = models
+    strain_c, acc_c, trial = state_with_history(5, seed=2)
+    mat = SurrogateMaterial(5, sigma, tangent="autodiff")
+    mat.set_state({"strain": strain_c, "accumulated": acc_c})
+    _, D = mat.evaluate(trial)
+    fd = finite_difference_tangent(mat, trial)
+    scale = np.abs(fd).max()
+    np.testing.assert_allclose(D, fd, atol=1e-6 * scale)
+    # the chain rule through φ1–φ3 matters: freezing the history changes the tangent a lot
+    frozen = SurrogateMaterial(5, sigma, tangent="autodiff")
+    frozen_fd = np.empty_like(fd)
+    phi = history_variables(accumulate(acc_c, strain_c, trial))
+    for J in range(6):
+        d = np.zeros(6)
+        d[J] = 1e-7 / ENGINEERING_FACTOR[J]
+        xp = np.concatenate([trial + d, phi], 1)
+        xm = np.concatenate([trial - d, phi], 1)
+        frozen_fd[:, :, J] = (sigma.predict(xp) - sigma.predict(xm)) / 2e-7
+    assert np.abs(frozen_fd - D).max() > 1e-3 * scale
+    assert frozen.method == "fem_ml_autodiff"
+
+
+def test_autodiff_tangent_finite_at_fresh_state(models):
+    sigma, _ = models
+    mat = SurrogateMaterial(4, sigma, tangent="autodiff")
+    stress, D = mat.evaluate(np.zeros((4, 6)))  # Δε_acc = 0: the kinks of |·| and sqrt
+    assert np.isfinite(D).all() and np.isfinite(stress).all()
+
+
+def test_autodiff_without_history_matches_finite_differences(data):
+    sigma = untrained(data, "sigma", use_history=False, seed=3)
+    mat = SurrogateMaterial(4, sigma, tangent="autodiff")
+    assert mat.method == "fem_ml_nohist_autodiff"
+    _, _, trial = state_with_history(4, seed=3)
+    _, D = mat.evaluate(trial)
+    fd = finite_difference_tangent(mat, trial)
+    np.testing.assert_allclose(D, fd, atol=1e-6 * np.abs(fd).max())
+
+
+@pytest.mark.slow
+def test_trained_nd_agrees_with_finite_differences_of_trained_nn_sigma():
+    """Train NNσ and ND on a linear elastic response: ND (nn tangent) must match the finite-difference
+    tangent of NNσ wrt engineering strain, and both the exact elastic stiffness. A factor-2 slip in the
+    shear convention (tensorial vs engineering) would miss by 50 % on the shear diagonal."""
+    n = 48
+    # space-filling strains (the elastic response has no history), so that NNσ's slopes are learnt
+    strain = np.random.default_rng(5).uniform(-0.005, 0.005, size=(21, n, 6))
+    strain[0] = 0.0
+    elastic = LinearElastic(n, 5.0e7, 0.25, initial_stress=[-1e5, -1e5, -1e5, 0, 0, 0])
+    train_ds, heldout_ds = build_dataset(material_point_run(elastic, strain), 0.75, seed=0)
+    settings = dict(CONFIG["surrogate"], epochs=150, learning_rate=3e-3, loss="mse", log_every=1000)
+    sigma, _, _ = train(train_ds, heldout_ds, "sigma", settings, seed=0, use_history=False)
+    nd, _, _ = train(train_ds, heldout_ds, "tangent", settings, seed=0, use_history=False)
+    mat = SurrogateMaterial(6, sigma, nd, tangent="nn")
+    probe = strain[12, :6]
+    _, D_nn = mat.evaluate(probe)
+    fd = finite_difference_tangent(mat, probe, h=1e-6)
+    D_exact = isotropic_elastic_tangent(5.0e7, 0.25)
+    scale = np.abs(D_exact).max()
+    assert np.abs(D_nn - D_exact).max() < 1e-3 * scale  # a constant target: ND learns it closely
+    assert np.abs(fd - D_exact).max() < 0.1 * scale
+    assert np.abs(fd - D_nn).max() < 0.1 * scale
+    # shear diagonal = μ = E / (2 (1 + ν)) = 20 MPa on engineering strain (40 MPa if the convention slipped)
+    assert D_exact[3, 3] == pytest.approx(2e7)
+    assert np.all(np.abs(np.diagonal(fd, axis1=1, axis2=2)[:, 3:] / 2e7 - 1) < 0.2)
+
+
+def test_out_of_range_inputs_are_counted_and_logged(models, caplog):
+    sigma, nd = models
+    x_max = sigma.network.x_max.numpy()
+    mat = SurrogateMaterial(5, sigma, nd, out_of_range_tolerance=0.0, logger=logging.getLogger("oor"))
+    inside = np.tile(0.5 * (sigma.network.x_min.numpy() + x_max)[:6], (5, 1))
+    mat.evaluate(inside)
+    mat.commit()
+    assert mat.step_info()["out_of_range_points"] == 0
+    beyond = inside.copy()
+    beyond[[1, 3], 2] = 3 * x_max[2] - 2 * sigma.network.x_min.numpy()[2]  # ε33 two ranges past the max
+    with caplog.at_level(logging.WARNING, logger="oor"):
+        mat.evaluate(beyond)
+        mat.commit()
+    info = mat.step_info()
+    assert info["out_of_range_points"] == 2
+    assert info["out_of_range_excess"] == pytest.approx(2.0, rel=1e-6)
+    assert "2 of 5 Gauss points" in caplog.text and "strain_33" in caplog.text
+    # a tolerance of the whole excess lets the step pass as in range... for strain; φ grew too
+    lenient = SurrogateMaterial(5, sigma, nd, out_of_range_tolerance=10.0)
+    lenient.evaluate(beyond)
+    lenient.commit()
+    assert lenient.step_info()["out_of_range_points"] == 0
+
+
+def test_state_roundtrip_and_errors(models):
+    sigma, nd = models
+    strain_c, acc_c, trial = state_with_history(4, seed=4)
+    a = SurrogateMaterial(4, sigma, nd)
+    a.set_state({"strain": strain_c, "accumulated": acc_c})
+    a.evaluate(trial)
+    a.commit()
+    b = SurrogateMaterial(4, sigma, nd)
+    b.set_state(a.get_state())
+    probe = trial * 1.1
+    np.testing.assert_array_equal(a.evaluate(probe)[0], b.evaluate(probe)[0])
+    with pytest.raises(ValueError, match="state for 4 points"):
+        SurrogateMaterial(3, sigma, nd).set_state(a.get_state())
+    with pytest.raises(ValueError, match="needs the ND model"):
+        SurrogateMaterial(4, sigma, None, tangent="nn")
+    with pytest.raises(ValueError, match="surrogate.tangent"):
+        SurrogateMaterial(4, sigma, nd, tangent="secant")
+    with pytest.raises(ValueError, match="NNσ"):
+        SurrogateMaterial(4, nd, nd)
+    bad = trial.copy()
+    bad[2, 1] = np.nan
+    with pytest.raises(MaterialPointError, match=r"Gauss points \[2\]"):
+        a.evaluate(bad)

@@ -1,0 +1,113 @@
+"""NNσ/ND training: seeded and deterministic, learns, self-sufficient model files, loss/MAE outputs."""
+
+import numpy as np
+import pytest
+import torch
+
+from granular_multiscale.config import load_config
+from granular_multiscale.materials.elastoplastic import Elastoplastic
+from granular_multiscale.paths import load_paths_from_config
+from granular_multiscale.surrogate.dataset import FEATURES, STRAIN_FEATURES, TANGENT_TARGETS, build_dataset, features, targets
+from granular_multiscale.surrogate.models import ModelFileError, SurrogateModel
+from granular_multiscale.surrogate.training import TrainingError, model_seed, plot_losses, train
+
+CONFIG = load_config(overrides={"reference_material": "elastoplastic"})
+FAST = dict(CONFIG["surrogate"], epochs=6, learning_rate=3e-3, log_every=2)
+
+
+@pytest.fixture(scope="module")
+def data():
+    from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
+
+    path = load_paths_from_config(CONFIG)["path1"]
+    run = material_point_run(Elastoplastic.from_config(16, CONFIG), triaxial_strain_paths(path, 16, seed=1), path)
+    return build_dataset(run, 0.75, seed=0)
+
+
+def test_paper_defaults_in_config():
+    s = CONFIG["surrogate"]
+    assert (s["hidden_layers"], s["hidden_units"], s["batch_size"], s["learning_rate"], s["epochs"], s["loss"]) == (
+        4, 20, 64, 1e-4, 600, "mae"
+    )
+    assert s["train_fraction"] == 0.75
+
+
+def test_architecture_follows_config(data):
+    model = SurrogateModel.create("tangent", True, {k: np.zeros(n) for k, n in
+                                                     (("x_min", 9), ("x_max", 9), ("y_min", 21), ("y_max", 21))},
+                                  dict(FAST, hidden_layers=3, hidden_units=7, activation="relu"))
+    linears = [m for m in model.network.net if isinstance(m, torch.nn.Linear)]
+    assert [(m.in_features, m.out_features) for m in linears] == [(9, 7), (7, 7), (7, 7), (7, 21)]
+    assert sum(isinstance(m, torch.nn.ReLU) for m in model.network.net) == 3
+    assert model.target_names == TANGENT_TARGETS and model.feature_names == FEATURES
+
+
+def test_training_is_deterministic_and_seeded(data):
+    a, loss_a, _ = train(*data, "sigma", FAST, seed=5)
+    b, loss_b, _ = train(*data, "sigma", FAST, seed=5)
+    c, _, _ = train(*data, "sigma", FAST, seed=6)
+    for (name, pa), pb in zip(a.network.state_dict().items(), b.network.state_dict().values()):
+        assert torch.equal(pa, pb), name
+    np.testing.assert_array_equal(loss_a[["train_loss", "heldout_loss"]].values, loss_b[["train_loss", "heldout_loss"]].values)
+    assert not torch.equal(a.network.net[0].weight, c.network.net[0].weight)
+    assert len({model_seed(0, k, h) for k in ("sigma", "tangent") for h in (True, False)}) == 4
+
+
+def test_training_learns_and_reports(data):
+    model, losses, mae = train(*data, "sigma", dict(FAST, epochs=30), seed=0)
+    assert list(losses.columns) == ["epoch", "train_loss", "heldout_loss", "elapsed_s"]
+    assert list(losses.epoch) == list(range(1, 31))
+    assert losses.train_loss.iloc[-1] < 0.4 * losses.train_loss.iloc[0]
+    assert losses.heldout_loss.iloc[-1] < 0.4 * losses.heldout_loss.iloc[0]
+    # the table's MAE is that of the model's physical-unit predictions
+    train_ds, heldout_ds = data
+    ho_mae = np.mean(np.abs(model.predict(features(heldout_ds)) - targets(heldout_ds, "sigma")), axis=0)
+    np.testing.assert_allclose(mae.heldout_mae_pa.values, ho_mae, rtol=1e-10)
+    assert list(mae.target) == [f"stress_{c}" for c in ("11", "22", "33", "23", "13", "12")]
+    # better than predicting the mean of the training targets
+    baseline = np.mean(np.abs(targets(heldout_ds, "sigma") - targets(train_ds, "sigma").mean(axis=0)), axis=0)
+    assert np.all(mae.heldout_mae_pa.values[:3] < 0.5 * baseline[:3])
+
+
+def test_model_file_is_self_sufficient(data, tmp_path):
+    model, _, _ = train(*data, "tangent", FAST, seed=1, use_history=False, config={"surrogate": FAST, "seed": 1})
+    model.save(tmp_path / "nd.pt")
+    back = SurrogateModel.load(tmp_path / "nd.pt")
+    assert back.kind == "tangent" and back.feature_names == STRAIN_FEATURES and not back.use_history
+    assert back.target_names == TANGENT_TARGETS
+    assert back.config["surrogate"]["epochs"] == FAST["epochs"] and back.training["epochs"] == FAST["epochs"]
+    np.testing.assert_array_equal(back.training["heldout_gp"], data[1].gp.values)
+    x = features(data[1], use_history=False)
+    # float64 reload of float32 weights: same predictions to float32 accuracy, scaling kept in float64
+    np.testing.assert_allclose(back.predict(x), model.predict(x), rtol=1e-4, atol=1e-3 * np.abs(model.predict(x)).max())
+    np.testing.assert_array_equal(back.network.y_min.numpy(), data[0].tangent_min.values)
+    assert back.network.net[0].weight.dtype == torch.float64
+
+
+def test_model_file_errors(tmp_path):
+    with pytest.raises(ModelFileError, match="not found"):
+        SurrogateModel.load(tmp_path / "none.pt")
+    (tmp_path / "junk.pt").write_bytes(b"not a model")
+    with pytest.raises(ModelFileError, match="junk.pt"):
+        SurrogateModel.load(tmp_path / "junk.pt")
+    torch.save({"format": "other"}, tmp_path / "other.pt")
+    with pytest.raises(ModelFileError, match="not a surrogate model"):
+        SurrogateModel.load(tmp_path / "other.pt")
+
+
+def test_bad_settings_are_named(data):
+    with pytest.raises(TrainingError, match="surrogate.loss"):
+        train(*data, "sigma", dict(FAST, loss="huber"), seed=0)
+    with pytest.raises(ValueError, match="surrogate.activation"):
+        train(*data, "sigma", dict(FAST, activation="swish"), seed=0)
+    if not torch.cuda.is_available():
+        with pytest.raises(TrainingError, match="surrogate.device"):
+            train(*data, "sigma", dict(FAST, device="cuda"), seed=0)
+    with pytest.raises(TrainingError, match="loss is not finite at epoch"):
+        train(*data, "sigma", dict(FAST, learning_rate=1e30, loss="mse", epochs=3), seed=0)
+
+
+def test_loss_figure(data, tmp_path):
+    _, losses, _ = train(*data, "sigma", FAST, seed=0)
+    plot_losses({"NNσ": losses}, tmp_path / "loss.png")
+    assert (tmp_path / "loss.png").stat().st_size > 5000

@@ -1,0 +1,218 @@
+"""The trained networks as a material-point set: what FEM–ML puts at the Gauss points.
+
+Per Newton iteration every Gauss point is answered by ONE batched forward pass (no loop
+over points). With ε_c and Δε_acc,c the converged strain and accumulated increment of the
+last committed step and ε the trial strain,
+
+    Δε_acc = Δε_acc,c + |ε − ε_c|,   φ = φ(Δε_acc),   x = [ε, φ1, φ2, φ3]
+    σ = NNσ(x)
+
+and the history (ε_c, Δε_acc,c) advances only in :meth:`SurrogateMaterial.commit`.
+
+Tangent options (config ``surrogate.tangent``):
+
+* ``nn``: ND(x), its 21 entries reassembled into the symmetric 6×6 Voigt matrix (Pa),
+  the paper's choice;
+* ``autodiff``: the exact Jacobian of ε ↦ NNσ(ε, φ(ε)) by ``torch.func`` (vmap over points),
+  including the chain rule through φ1–φ3, which depend on the trial strain. The network
+  takes tensorial shear, the solver's tangent acts on engineering strain
+  (``tensors`` module), so column J is divided by 1 (normal) or 2 (shear).
+  This tangent is not symmetric in general.
+
+Inputs outside the training minimum–maximum are not an error (the networks extrapolate)
+but never pass silently: each step's count is logged and returned by :meth:`step_info`
+(``out_of_range_points``), which the solver writes to the run file.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.func import jacrev, vmap
+
+from ..history import history_variables_torch
+from ..materials.base import MaterialPointSet
+from ..tensors import ENGINEERING_FACTOR, UPPER
+from .dataset import STRAIN_FEATURES
+from .models import SurrogateModel
+
+TANGENTS = ("nn", "autodiff")
+
+# gather index that turns the 21 upper-triangle entries into the full symmetric 6×6 matrix
+_SYMMETRIC_INDEX = np.empty((6, 6), dtype=np.int64)
+for _k, (_i, _j) in enumerate(zip(*UPPER)):
+    _SYMMETRIC_INDEX[_i, _j] = _SYMMETRIC_INDEX[_j, _i] = _k
+
+# Roundoff-sized deviations (e.g. a shear strain that is 1e-18 instead of 0) are not "out of range".
+_ROUNDOFF = 1e-9
+
+
+def method_name(tangent: str, use_history: bool = True) -> str:
+    """Name written to the run file's `method` attribute, e.g. 'fem_ml_nn', 'fem_ml_nohist_autodiff'."""
+    return f"fem_ml_{'' if use_history else 'nohist_'}{tangent}"
+
+
+class SurrogateMaterial(MaterialPointSet):
+    """NNσ (+ ND) at `n_points` Gauss points; float64 on the CPU."""
+
+    def __init__(
+        self,
+        n_points: int,
+        sigma_model: SurrogateModel,
+        tangent_model: SurrogateModel | None = None,
+        tangent: str = "nn",
+        out_of_range_tolerance: float = 0.0,
+        logger: logging.Logger | None = None,
+    ):
+        super().__init__(n_points)
+        if tangent not in TANGENTS:
+            raise ValueError(f"config key 'surrogate.tangent' must be one of {TANGENTS}, got {tangent!r}")
+        if sigma_model.kind != "sigma":
+            raise ValueError(f"the stress model must be an NNσ (kind 'sigma'), got kind {sigma_model.kind!r}")
+        if tangent == "nn":
+            if tangent_model is None:
+                raise ValueError("surrogate.tangent 'nn' needs the ND model (kind 'tangent')")
+            if tangent_model.kind != "tangent":
+                raise ValueError(f"the tangent model must be an ND (kind 'tangent'), got kind {tangent_model.kind!r}")
+            if tangent_model.feature_names != sigma_model.feature_names:
+                raise ValueError(
+                    f"NNσ and ND take different features: {sigma_model.feature_names} vs {tangent_model.feature_names}"
+                )
+        if out_of_range_tolerance < 0:
+            raise ValueError(f"config key 'surrogate.out_of_range_tolerance' must be >= 0, got {out_of_range_tolerance}")
+        self.tangent = tangent
+        self.use_history = sigma_model.use_history
+        self.method = method_name(tangent, self.use_history)
+        self.logger = logger or logging.getLogger(__name__)
+        self.dtype = torch.float64
+        self.sigma_model = sigma_model
+        self.tangent_model = tangent_model if tangent == "nn" else None
+        self._sigma_net = sigma_model.network.to(self.dtype)
+        self._tangent_net = self.tangent_model.network.to(self.dtype) if self.tangent_model else None
+        self._eng = torch.as_tensor(ENGINEERING_FACTOR, dtype=self.dtype)
+        self._sym = torch.as_tensor(_SYMMETRIC_INDEX.ravel())
+        self._range_bounds(out_of_range_tolerance)
+
+        self._strain_c = np.zeros((self.n_points, 6))
+        self._acc_c = np.zeros((self.n_points, 6))
+        self._trial: np.ndarray | None = None
+        self._trial_out_of_range: tuple[np.ndarray, np.ndarray] | None = None
+        self._step_info = {"out_of_range_points": 0.0, "out_of_range_excess": 0.0}
+        self._commits = 0
+
+    @classmethod
+    def from_files(
+        cls,
+        n_points: int,
+        sigma_path: str | Path,
+        tangent_path: str | Path | None = None,
+        tangent: str = "nn",
+        out_of_range_tolerance: float = 0.0,
+        logger: logging.Logger | None = None,
+    ) -> "SurrogateMaterial":
+        sigma = SurrogateModel.load(sigma_path)
+        nd = SurrogateModel.load(tangent_path) if (tangent == "nn" and tangent_path is not None) else None
+        return cls(n_points, sigma, nd, tangent, out_of_range_tolerance, logger)
+
+    # ---------------------------------------------------------------- inputs
+    def _range_bounds(self, tolerance: float) -> None:
+        net = self._sigma_net
+        lo = net.x_min.detach().numpy().astype(np.float64)
+        hi = net.x_max.detach().numpy().astype(np.float64)
+        span = hi - lo
+        n_strain = len(STRAIN_FEATURES)
+        scale = np.maximum(np.abs(lo), np.abs(hi))
+        scale[:n_strain] = max(span[:n_strain].max(), scale[:n_strain].max())
+        margin = tolerance * span + _ROUNDOFF * scale
+        self._lo, self._hi = lo - margin, hi + margin
+        self._span = np.where(span > 0, span, 1.0)
+        self.feature_names = self.sigma_model.feature_names
+
+    def _features(self, strain: torch.Tensor, acc_c: torch.Tensor, strain_c: torch.Tensor) -> torch.Tensor:
+        """[..., 6] trial strain -> [..., 9] (or [..., 6] without history) network features."""
+        if not self.use_history:
+            return strain
+        acc = acc_c + torch.abs(strain - strain_c)
+        return torch.cat([strain, history_variables_torch(acc)], dim=-1)
+
+    def _out_of_range(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per point: any feature outside the training range; excess in units of the training range."""
+        below = np.maximum(self._lo - x, 0.0)
+        above = np.maximum(x - self._hi, 0.0)
+        excess = (below + above) / self._span
+        return excess > 0, excess
+
+    # ---------------------------------------------------------------- interface
+    def evaluate(self, strain: np.ndarray, need_tangent: bool = True):
+        strain = self._check_strain(strain)
+        eps = torch.from_numpy(strain)
+        acc_c = torch.from_numpy(self._acc_c)
+        eps_c = torch.from_numpy(self._strain_c)
+        with torch.no_grad():
+            x = self._features(eps, acc_c, eps_c)
+            if need_tangent and self.tangent == "autodiff":
+                jac, sigma = vmap(jacrev(self._stress_with_aux, has_aux=True))(eps, acc_c, eps_c)
+                tangent = jac / self._eng  # ∂σ/∂ε (tensorial) -> acts on engineering strain
+            else:
+                sigma = self._sigma_net(x)
+                tangent = None
+                if need_tangent:
+                    upper = self._tangent_net(x)
+                    tangent = upper[:, self._sym].reshape(-1, 6, 6)
+        stress = sigma.numpy().copy()
+        tangent_np = tangent.numpy().copy() if tangent is not None else None
+        self._check_response(stress, tangent_np, self.method)
+        self._trial = strain.copy()
+        self._trial_out_of_range = self._out_of_range(x.numpy())
+        return stress, tangent_np
+
+    def _stress_with_aux(self, strain, acc_c, strain_c):
+        sigma = self._sigma_net(self._features(strain, acc_c, strain_c))
+        return sigma, sigma
+
+    def commit(self) -> None:
+        if self._trial is None:
+            raise RuntimeError(f"{type(self).__name__}.commit() called before evaluate()")
+        self._acc_c = self._acc_c + np.abs(self._trial - self._strain_c)
+        self._strain_c = self._trial
+        self._commits += 1
+        flagged, excess = self._trial_out_of_range
+        points = np.flatnonzero(flagged.any(axis=1))
+        self._step_info = {
+            "out_of_range_points": float(points.size),
+            "out_of_range_excess": float(excess.max()) if excess.size else 0.0,
+        }
+        if points.size:
+            features = [self.feature_names[j] for j in np.flatnonzero(flagged.any(axis=0))]
+            self.logger.warning(
+                "%s: committed state %d has %d of %d Gauss points with inputs outside the training range "
+                "(features %s; largest excess %.2g of the training range; first points %s)",
+                self.method, self._commits, points.size, self.n_points, ", ".join(features),
+                self._step_info["out_of_range_excess"], points[:5].tolist(),
+            )
+        self._trial = None
+
+    def step_info(self) -> dict[str, float]:
+        return dict(self._step_info)
+
+    def get_state(self) -> dict[str, Any]:
+        return {"strain": self._strain_c.copy(), "accumulated": self._acc_c.copy(), "commits": self._commits}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        strain = np.asarray(state["strain"], dtype=float)
+        acc = np.asarray(state["accumulated"], dtype=float)
+        if strain.shape != (self.n_points, 6) or acc.shape != (self.n_points, 6):
+            raise ValueError(f"state for {strain.shape[0]} points, this set has {self.n_points}")
+        self._strain_c, self._acc_c = strain.copy(), acc.copy()
+        self._commits = int(state.get("commits", 0))
+        self._trial = None
+
+    @property
+    def history(self) -> np.ndarray:
+        """[n, 3] φ1–φ3 of the converged state."""
+        with torch.no_grad():
+            return history_variables_torch(torch.from_numpy(self._acc_c)).numpy()

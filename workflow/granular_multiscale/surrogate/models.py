@@ -1,0 +1,182 @@
+"""The surrogate networks NNσ (features -> 6 stresses) and ND (features -> 21 tangent entries).
+
+A :class:`ScaledMLP` is a plain MLP (paper Table 3: 4 hidden layers × 20 units) wrapped by
+its min–max scaling, kept as buffers: ``forward`` takes features and returns targets in
+physical units (Pa), so it can be differentiated end to end (autodiff tangent).
+
+A :class:`SurrogateModel` adds what makes the saved file self-sufficient: which targets it
+predicts, the feature and target names, the scaling, the config and the training summary.
+``SurrogateModel.load(path)`` needs nothing else.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from .dataset import STRAIN_FEATURES, feature_names, target_names
+
+FORMAT = "granular_multiscale.surrogate/1"
+ACTIVATIONS = {
+    "tanh": nn.Tanh,
+    "relu": nn.ReLU,
+    "gelu": nn.GELU,
+    "silu": nn.SiLU,
+    "softplus": nn.Softplus,
+    "elu": nn.ELU,
+    "sigmoid": nn.Sigmoid,
+}
+
+
+class ModelFileError(ValueError):
+    """A model file is missing, unreadable or not a surrogate model; the message names the file."""
+
+
+def _safe_range(lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
+    # A constant feature (e.g. a shear strain that is zero everywhere) maps to 0, not to NaN.
+    span = hi - lo
+    return torch.where(span > 0, span, torch.ones_like(span))
+
+
+class ScaledMLP(nn.Module):
+    def __init__(self, n_in: int, n_out: int, hidden_layers: int, hidden_units: int, activation: str,
+                 x_min, x_max, y_min, y_max):
+        super().__init__()
+        if activation not in ACTIVATIONS:
+            raise ValueError(f"surrogate.activation must be one of {sorted(ACTIVATIONS)}, got {activation!r}")
+        layers: list[nn.Module] = []
+        width = n_in
+        for _ in range(hidden_layers):
+            layers += [nn.Linear(width, hidden_units), ACTIVATIONS[activation]()]
+            width = hidden_units
+        layers.append(nn.Linear(width, n_out))
+        self.net = nn.Sequential(*layers)
+        # the exact (float64) scaling is what the model file stores, whatever dtype the weights train in
+        self.exact_scaling = {k: np.asarray(v, dtype=np.float64).copy() for k, v in
+                              (("x_min", x_min), ("x_max", x_max), ("y_min", y_min), ("y_max", y_max))}
+        as_t = lambda v: torch.as_tensor(np.asarray(v, dtype=np.float64), dtype=torch.float32)  # noqa: E731
+        self.register_buffer("x_min", as_t(x_min))
+        self.register_buffer("x_max", as_t(x_max))
+        self.register_buffer("y_min", as_t(y_min))
+        self.register_buffer("y_max", as_t(y_max))
+        if self.x_min.shape != (n_in,) or self.y_min.shape != (n_out,):
+            raise ValueError(f"scaling shapes {tuple(self.x_min.shape)}, {tuple(self.y_min.shape)} do not match {n_in} -> {n_out}")
+
+    def scale_x(self, x: torch.Tensor) -> torch.Tensor:
+        return (x - self.x_min) / _safe_range(self.x_min, self.x_max)
+
+    def scale_y(self, y: torch.Tensor) -> torch.Tensor:
+        return (y - self.y_min) / _safe_range(self.y_min, self.y_max)
+
+    def unscale_y(self, y_scaled: torch.Tensor) -> torch.Tensor:
+        return y_scaled * _safe_range(self.y_min, self.y_max) + self.y_min
+
+    def forward_scaled(self, x_scaled: torch.Tensor) -> torch.Tensor:
+        return self.net(x_scaled)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Features in physical units -> targets in physical units."""
+        return self.unscale_y(self.net(self.scale_x(x)))
+
+
+@dataclass
+class SurrogateModel:
+    network: ScaledMLP
+    kind: str  # "sigma" (NNσ) or "tangent" (ND)
+    feature_names: tuple[str, ...]
+    target_names: tuple[str, ...]
+    architecture: dict
+    config: dict = field(default_factory=dict)
+    training: dict = field(default_factory=dict)
+
+    @classmethod
+    def create(cls, kind: str, use_history: bool, scaling: dict, settings: dict, config: dict | None = None) -> "SurrogateModel":
+        """A fresh (untrained) model; `settings` is the config's `surrogate` section."""
+        feats, targs = feature_names(use_history), target_names(kind)
+        arch = {
+            "n_in": len(feats),
+            "n_out": len(targs),
+            "hidden_layers": int(settings["hidden_layers"]),
+            "hidden_units": int(settings["hidden_units"]),
+            "activation": str(settings["activation"]),
+        }
+        net = ScaledMLP(**arch, **{k: scaling[k] for k in ("x_min", "x_max", "y_min", "y_max")})
+        return cls(net, kind, tuple(feats), tuple(targs), arch, dict(config or {}))
+
+    @property
+    def use_history(self) -> bool:
+        return len(self.feature_names) > len(STRAIN_FEATURES)
+
+    @property
+    def n_features(self) -> int:
+        return len(self.feature_names)
+
+    def predict(self, x: np.ndarray) -> np.ndarray:
+        """[n, n_features] raw features -> [n, n_targets] raw targets (numpy, no gradient)."""
+        param = next(self.network.parameters())
+        with torch.no_grad():
+            y = self.network(torch.as_tensor(np.asarray(x), dtype=param.dtype, device=param.device))
+        return y.cpu().numpy().astype(np.float64)
+
+    def save(self, path: str | Path) -> None:
+        """Write weights, scaling, names, config and training summary atomically."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        net = self.network
+        payload = {
+            "format": FORMAT,
+            "kind": self.kind,
+            "feature_names": list(self.feature_names),
+            "target_names": list(self.target_names),
+            "architecture": dict(self.architecture),
+            "scaling": {k: v.tolist() for k, v in net.exact_scaling.items()},
+            "state_dict": {k: v.detach().cpu().float() for k, v in net.state_dict().items()},
+            "config": json.dumps(self.config),
+            "training": json.dumps(self.training),
+        }
+        fd, tmp = tempfile.mkstemp(suffix=".pt.tmp", dir=path.parent)
+        os.close(fd)
+        try:
+            torch.save(payload, tmp)
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+    @classmethod
+    def load(cls, path: str | Path, dtype: torch.dtype = torch.float64) -> "SurrogateModel":
+        """Load a saved model (eval mode, no gradients on the weights) in `dtype` on the CPU."""
+        path = Path(path)
+        if not path.exists():
+            raise ModelFileError(f"model file not found: {path}")
+        try:
+            payload = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as e:  # torch raises several types for a damaged file
+            raise ModelFileError(f"{path}: not a readable model file ({e})") from None
+        if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+            raise ModelFileError(f"{path}: not a surrogate model file (expected format {FORMAT})")
+        arch = payload["architecture"]
+        net = ScaledMLP(**arch, **payload["scaling"])
+        net.load_state_dict(payload["state_dict"])
+        net = net.to(dtype)
+        # reload the scaling buffers at full precision (they were created in float32)
+        for k, v in net.exact_scaling.items():
+            getattr(net, k).copy_(torch.as_tensor(v, dtype=dtype))
+        net.eval()
+        net.requires_grad_(False)
+        return cls(
+            net,
+            payload["kind"],
+            tuple(payload["feature_names"]),
+            tuple(payload["target_names"]),
+            dict(arch),
+            json.loads(payload["config"]),
+            json.loads(payload["training"]),
+        )
