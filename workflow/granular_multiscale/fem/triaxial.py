@@ -165,7 +165,7 @@ class TriaxialProblem:
     def _solve_step(self, material, step: int, a_from: float, a_to: float, u: np.ndarray,
                     previous: Converged | None, timers: Timers):
         """Advance from axial strain a_from to a_to, halving on failure; commits every sub-step."""
-        stats = {"cutbacks": 0, "iterations": 0, "last": None}
+        stats = {"cutbacks": 0, "iterations": 0}
 
         def advance(lo: float, hi: float, depth: int, u_start, prev):
             try:
@@ -183,7 +183,6 @@ class TriaxialProblem:
                 return advance(mid, hi, depth + 1, half.u, half)
             material.commit()
             stats["iterations"] += result.iterations
-            stats["last"] = result
             return result
 
         result = advance(a_from, a_to, 0, u, previous)
