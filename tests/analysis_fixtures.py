@@ -114,3 +114,68 @@ def split_gauss_points(n_gp: int, seed: int = 0, train_fraction: float = 0.75):
     order = np.random.default_rng(seed).permutation(n_gp)
     n_train = int(round(train_fraction * n_gp))
     return np.sort(order[:n_train]), np.sort(order[n_train:])
+
+
+# --------------------------------------------------------------------------------------
+# real tiny runs with the project's FEM solver, standing in for every input of the analysis
+# rules (the surrogate stage's outputs are imitated by other analytic materials)
+
+
+def solve(config: dict, material: str, path_name: str, overrides: dict | None = None):
+    """One triaxial run with an analytic material; ``overrides`` edit that material's section."""
+    import copy
+
+    from granular_multiscale.config import validate_config
+    from granular_multiscale.fem.triaxial import TriaxialProblem
+    from granular_multiscale.materials import make_material
+    from granular_multiscale.paths import load_paths_from_config
+
+    config = copy.deepcopy(config)
+    config.setdefault(material, {}).update(overrides or {})
+    config = validate_config(config)
+    problem = TriaxialProblem.from_config(config)
+    with make_material(material, problem.n_gauss_points, config) as points:
+        return problem.run(points, load_paths_from_config(config)[path_name], progress=False), config
+
+
+def write_analysis_inputs(out_dir, config: dict) -> dict:
+    """Every file the analysis rules read, for the validation path, under ``out_dir``.
+
+    reference = the elastoplastic model; 'FEM–ML' = the same model with 5 % stiffer elasticity
+    and 5 % less hardening (a close imitation); 'no history' = linear elasticity (no loop);
+    dataset split, and loss curves of the shape the training stage writes."""
+    from pathlib import Path
+
+    import pandas as pd
+
+    from granular_multiscale.data import write_run
+
+    out = Path(out_dir)
+    path = config["validation_path"]
+    reference, cfg = solve(config, "elastoplastic", path)
+    write_run(reference, out / "fem_elastoplastic" / f"{path}.h5", cfg)
+    E = cfg["elastoplastic"]["youngs_modulus"]
+    close, _ = solve(config, "elastoplastic", path, {
+        "youngs_modulus": 1.05 * E,
+        "saturated_hardening": 0.95 * cfg["elastoplastic"]["saturated_hardening"],
+    })
+    close.attrs["method"] = "fem_ml_nn"
+    write_run(close, out / "fem_ml" / f"{path}.h5", cfg)
+    elastic, _ = solve(config, "linear_elastic", path, {"youngs_modulus": 0.3 * E})
+    elastic.attrs["method"] = "fem_ml_nn_nohist"
+    write_run(elastic, out / "fem_ml_nohist" / f"{path}.h5", cfg)
+    train_gp, heldout_gp = split_gauss_points(reference.sizes["gp"], seed=cfg["seed"])
+    for name, ids in (("train", train_gp), ("heldout", heldout_gp)):
+        subset = reference[["strain", "stress", "gp_position"]].sel(gp=ids)
+        (out / "dataset").mkdir(parents=True, exist_ok=True)
+        subset.to_netcdf(out / "dataset" / f"{name}.h5", engine="h5netcdf")
+    epochs = np.arange(1, 31)
+    (out / "training").mkdir(parents=True, exist_ok=True)
+    for name, level in (("sigma", 0.02), ("tangent", 0.04), ("sigma_nohist", 0.05), ("tangent_nohist", 0.07)):
+        pd.DataFrame({
+            "epoch": epochs,
+            "train_loss": level * (1 + 5 / epochs),
+            "heldout_loss": 1.1 * level * (1 + 5 / epochs),
+            "elapsed_s": 0.01 * epochs,
+        }).to_csv(out / "training" / f"{name}.csv", index=False)
+    return {"reference": reference, "train_gp": train_gp, "heldout_gp": heldout_gp}

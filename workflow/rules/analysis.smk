@@ -1,1 +1,290 @@
-# Rules of this stage are added by its issue; see README.
+# Figures, tables and the HTML report: the comparison a reader sees.
+#
+#   snakemake -j2 all                                 builds every figure and table below
+#   snakemake --report {output_dir}/report.html       then builds the self-contained report
+#                                                     (same --configfile/--config as the run)
+#
+# All products compare runs of the validation path (Path2): the reference (FEM–DEM, or the
+# elastoplastic model with reference_material: elastoplastic), FEM–ML and the no-history
+# ablation; the speed figure and tables add FEM–DEM at other sphere counts when configured.
+import json
+import sys
+
+ANALYSIS = config["analysis"]
+VALIDATION = config["validation_path"]
+TANGENT = config["surrogate"]["tangent"]
+DATASET = {"train": f"{OUT}/dataset/train.h5", "heldout": f"{OUT}/dataset/heldout.h5"}
+FIELD_QUANTITIES = ["axial_displacement", "shear_strain", "sigma23"]
+REFERENCE_LABEL = (
+    f"FEM–DEM ({config['dem']['n_spheres']} spheres)"
+    if REFERENCE == "fem_dem"
+    else "FEM, elastoplastic model (reference)"
+)
+SURROGATE_LABEL = f"FEM–ML ({TANGENT} tangent)"
+ABLATION_LABEL = "FEM–ML, no history"
+
+
+def path_label(path):
+    return path[:1].upper() + path[1:]
+
+
+def comparison_runs(path):
+    """Ordered {label: run file} of the accuracy products: reference first."""
+    return {
+        REFERENCE_LABEL: reference_run(path),
+        SURROGATE_LABEL: f"{OUT}/fem_ml/{path}.h5",
+        ABLATION_LABEL: f"{OUT}/fem_ml_nohist/{path}.h5",
+    }
+
+
+def timing_runs(path):
+    """The comparison runs plus FEM–DEM at the other configured sphere counts (DEM reference only)."""
+    runs = comparison_runs(path)
+    if REFERENCE == "fem_dem":
+        for n in ANALYSIS["fem_dem_sphere_counts"]:
+            if n != config["dem"]["n_spheres"]:
+                runs[f"FEM–DEM ({n} spheres)"] = f"{OUT}/fem_dem_n{n}/{path}.h5"
+    return runs
+
+
+def stress_strain_names():
+    explicit = ANALYSIS["stress_strain_gauss_points"]
+    return [f"gp{g}" for g in explicit] if explicit else list(ANALYSIS["stress_strain_points"])
+
+
+TRAINING_CURVES = {
+    "NNσ|with history": f"{OUT}/training/sigma.csv",
+    "ND|with history": f"{OUT}/training/tangent.csv",
+    "NNσ|no history": f"{OUT}/training/sigma_nohist.csv",
+    "ND|no history": f"{OUT}/training/tangent_nohist.csv",
+}
+
+CAT_GP = "1 Gauss points"
+CAT_SPECIMEN = "2 Specimen"
+CAT_SPEED = "3 Speed and accuracy"
+CAT_TRAINING = "4 Training"
+
+
+rule figure_error_map:
+    input:
+        reference=reference_run(VALIDATION),
+        surrogate=f"{OUT}/fem_ml/{VALIDATION}.h5",
+        **DATASET,
+    output:
+        report(f"{OUT}/figures/error_map.png", caption="../report/error_map.rst", category=CAT_GP,
+               subcategory="Error map"),
+    log:
+        f"{OUT}/logs/analysis/figure_error_map.log",
+    benchmark:
+        f"{OUT}/benchmarks/analysis/figure_error_map.tsv"
+    params:
+        kind="error_map",
+        settings=ANALYSIS,
+        path_label=path_label(VALIDATION),
+        reference_label=REFERENCE_LABEL,
+        surrogate_label=SURROGATE_LABEL,
+    script:
+        "../../scripts/analysis_figure.py"
+
+
+rule figure_stress_strain:
+    input:
+        runs=list(comparison_runs(VALIDATION).values()),
+        **DATASET,
+    output:
+        [
+            report(f"{OUT}/figures/stress_strain_{name}.png", caption="../report/stress_strain.rst",
+                   category=CAT_GP, subcategory="Stress–strain at held-out points")
+            for name in stress_strain_names()
+        ],
+    log:
+        f"{OUT}/logs/analysis/figure_stress_strain.log",
+    benchmark:
+        f"{OUT}/benchmarks/analysis/figure_stress_strain.tsv"
+    params:
+        kind="stress_strain",
+        settings=ANALYSIS,
+        path_label=path_label(VALIDATION),
+        labels=list(comparison_runs(VALIDATION)),
+        points=stress_strain_names(),
+    script:
+        "../../scripts/analysis_figure.py"
+
+
+rule figure_global_response:
+    input:
+        runs=list(comparison_runs(VALIDATION).values()),
+    output:
+        report(f"{OUT}/figures/top_force_volumetric_strain.png", caption="../report/global_response.rst",
+               category=CAT_SPECIMEN, subcategory="Top force and volumetric strain"),
+    log:
+        f"{OUT}/logs/analysis/figure_global_response.log",
+    benchmark:
+        f"{OUT}/benchmarks/analysis/figure_global_response.tsv"
+    params:
+        kind="global_response",
+        settings=ANALYSIS,
+        path_label=path_label(VALIDATION),
+        labels=list(comparison_runs(VALIDATION)),
+    script:
+        "../../scripts/analysis_figure.py"
+
+
+rule figure_fields:
+    input:
+        reference=reference_run(VALIDATION),
+        surrogate=f"{OUT}/fem_ml/{VALIDATION}.h5",
+    output:
+        report(f"{OUT}/figures/fields_{{quantity}}.png", caption="../report/fields.rst",
+               category=CAT_SPECIMEN, subcategory="Fields"),
+    log:
+        f"{OUT}/logs/analysis/figure_fields_{{quantity}}.log",
+    benchmark:
+        f"{OUT}/benchmarks/analysis/figure_fields_{{quantity}}.tsv"
+    wildcard_constraints:
+        quantity="|".join(FIELD_QUANTITIES),
+    params:
+        kind="fields",
+        settings=ANALYSIS,
+        path_label=path_label(VALIDATION),
+        reference_label=REFERENCE_LABEL,
+        surrogate_label=SURROGATE_LABEL,
+    script:
+        "../../scripts/analysis_figure.py"
+
+
+VTK_RUNS = {"reference": reference_run, "fem_ml": lambda path: f"{OUT}/fem_ml/{path}.h5"}
+
+
+rule vtk_export:
+    input:
+        lambda wc: VTK_RUNS[wc.run](wc.path),
+    output:
+        directory(f"{OUT}/vtk/{{run}}/{{path}}"),
+    log:
+        f"{OUT}/logs/analysis/vtk_{{run}}_{{path}}.log",
+    benchmark:
+        f"{OUT}/benchmarks/analysis/vtk_{{run}}_{{path}}.tsv"
+    wildcard_constraints:
+        run="|".join(VTK_RUNS),
+    script:
+        "../../scripts/analysis_vtk.py"
+
+
+rule figure_training_curves:
+    input:
+        curves=list(TRAINING_CURVES.values()),
+    output:
+        report(f"{OUT}/figures/training_curves.png", caption="../report/training_curves.rst",
+               category=CAT_TRAINING, subcategory="Loss curves"),
+    log:
+        f"{OUT}/logs/analysis/figure_training_curves.log",
+    benchmark:
+        f"{OUT}/benchmarks/analysis/figure_training_curves.tsv"
+    params:
+        kind="training_curves",
+        settings=ANALYSIS,
+        labels=list(TRAINING_CURVES),
+    script:
+        "../../scripts/analysis_figure.py"
+
+
+rule table_speedup:
+    input:
+        runs=list(timing_runs(VALIDATION).values()),
+    output:
+        csv=report(f"{OUT}/tables/speedup.csv", caption="../report/speedup_csv.rst", category=CAT_SPEED,
+                   subcategory="Speedup (Table 4)"),
+        html=report(f"{OUT}/tables/speedup.html", caption="../report/speedup.rst", category=CAT_SPEED,
+                    subcategory="Speedup (Table 4)"),
+    log:
+        f"{OUT}/logs/analysis/table_speedup.log",
+    benchmark:
+        f"{OUT}/benchmarks/analysis/table_speedup.tsv"
+    params:
+        kind="speedup",
+        path_label=path_label(VALIDATION),
+        labels=list(timing_runs(VALIDATION)),
+        paper_reference=ANALYSIS["paper_reference"],
+    script:
+        "../../scripts/analysis_table.py"
+
+
+rule table_accuracy:
+    input:
+        runs=list(timing_runs(VALIDATION).values()),
+        **DATASET,
+    output:
+        csv=report(f"{OUT}/tables/accuracy.csv", caption="../report/accuracy_csv.rst", category=CAT_SPEED,
+                   subcategory="Accuracy"),
+        html=report(f"{OUT}/tables/accuracy.html", caption="../report/accuracy.rst", category=CAT_SPEED,
+                    subcategory="Accuracy"),
+    log:
+        f"{OUT}/logs/analysis/table_accuracy.log",
+    benchmark:
+        f"{OUT}/benchmarks/analysis/table_accuracy.tsv"
+    params:
+        kind="accuracy",
+        path_label=path_label(VALIDATION),
+        labels=list(timing_runs(VALIDATION)),
+    script:
+        "../../scripts/analysis_table.py"
+
+
+rule figure_speed_vs_error:
+    input:
+        speedup=f"{OUT}/tables/speedup.csv",
+        accuracy=f"{OUT}/tables/accuracy.csv",
+    output:
+        report(f"{OUT}/figures/speed_vs_error.png", caption="../report/speed_vs_error.rst",
+               category=CAT_SPEED, subcategory="Speed vs error"),
+    log:
+        f"{OUT}/logs/analysis/figure_speed_vs_error.log",
+    benchmark:
+        f"{OUT}/benchmarks/analysis/figure_speed_vs_error.tsv"
+    params:
+        kind="speed_vs_error",
+        settings=ANALYSIS,
+    script:
+        "../../scripts/analysis_figure.py"
+
+
+rule headline:
+    input:
+        speedup=f"{OUT}/tables/speedup.csv",
+        accuracy=f"{OUT}/tables/accuracy.csv",
+    output:
+        f"{OUT}/tables/headline.json",
+    log:
+        f"{OUT}/logs/analysis/headline.log",
+    params:
+        kind="headline",
+        reference_label=REFERENCE_LABEL,
+        surrogate_label=SURROGATE_LABEL,
+        ablation_label=ABLATION_LABEL,
+    script:
+        "../../scripts/analysis_table.py"
+
+
+ANALYSIS_TARGETS = [
+    f"{OUT}/figures/error_map.png",
+    *[f"{OUT}/figures/stress_strain_{name}.png" for name in stress_strain_names()],
+    f"{OUT}/figures/top_force_volumetric_strain.png",
+    *[f"{OUT}/figures/fields_{q}.png" for q in FIELD_QUANTITIES],
+    *[f"{OUT}/vtk/{run}/{VALIDATION}" for run in VTK_RUNS],
+    f"{OUT}/figures/training_curves.png",
+    f"{OUT}/tables/speedup.csv",
+    f"{OUT}/tables/accuracy.csv",
+    f"{OUT}/figures/speed_vs_error.png",
+    f"{OUT}/tables/headline.json",
+]
+ALL_TARGETS += ANALYSIS_TARGETS
+
+
+# The report's front page (workflow/report/workflow.rst) states the headline numbers. Its
+# template sees only the config, so when Snakemake builds the report (--report) the numbers
+# of tables/headline.json are put under config["headline"]; runs never see that key.
+if any(arg == "--report" or arg.startswith("--report=") for arg in sys.argv):
+    _headline_file = Path(f"{OUT}/tables/headline.json")
+    if _headline_file.is_file():
+        config["headline"] = json.loads(_headline_file.read_text())

@@ -12,6 +12,7 @@ displacement as point data; the mesh is drawn deformed by the run's own displace
 from __future__ import annotations
 
 import os
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -80,6 +81,7 @@ class FieldQuantity:
     unit: str
     location: str  # "point" (nodal) or "cell" (element mean of Gauss-point values)
     values: Callable[[xr.Dataset, int], np.ndarray]  # (run, step) -> values at nodes or Gauss points
+    magnitude: Callable[[xr.Dataset, int], float]  # (run, step) -> size of the whole tensor/vector field
 
 
 def _axial_displacement_mm(ds: xr.Dataset, step: int) -> np.ndarray:
@@ -94,12 +96,26 @@ def _sigma23_kpa(ds: xr.Dataset, step: int) -> np.ndarray:
     return 1e-3 * ds["stress"].sel(step=step, comp="23").values
 
 
+def _max_displacement_mm(ds: xr.Dataset, step: int) -> float:
+    return 1e3 * float(np.max(np.abs(ds["displacement"].sel(step=step).values)))
+
+
+def _max_shear_strain_pct(ds: xr.Dataset, step: int) -> float:
+    return float(np.max(_shear_strain_pct(ds, step)))
+
+
+def _max_stress_kpa(ds: xr.Dataset, step: int) -> float:
+    return 1e-3 * float(np.max(np.abs(ds["stress"].sel(step=step).values)))
+
+
 FIELD_QUANTITIES: dict[str, FieldQuantity] = {
     q.name: q
     for q in (
-        FieldQuantity("axial_displacement", "axial displacement u_z", "mm", "point", _axial_displacement_mm),
-        FieldQuantity("shear_strain", "equivalent shear strain ε_s", "%", "cell", _shear_strain_pct),
-        FieldQuantity("sigma23", "shear stress σ23", "kPa", "cell", _sigma23_kpa),
+        FieldQuantity("axial_displacement", "axial displacement u_z", "mm", "point", _axial_displacement_mm,
+                      _max_displacement_mm),
+        FieldQuantity("shear_strain", "equivalent shear strain ε_s", "%", "cell", _shear_strain_pct,
+                      _max_shear_strain_pct),
+        FieldQuantity("sigma23", "shear stress σ23", "kPa", "cell", _sigma23_kpa, _max_stress_kpa),
     )
 }
 
@@ -163,14 +179,25 @@ class PanelRenderer:
         self.plotter.close()
 
 
-def _limits(*arrays: np.ndarray, symmetric: bool) -> tuple[float, float]:
+#: values below this fraction of the field's magnitude are round-off (e.g. σ23 ~ 1e-13 kPa
+#: on a symmetric mesh) and must not be stretched over a whole colour map
+NOISE_FRACTION = 1e-6
+
+
+def _limits(*arrays: np.ndarray, symmetric: bool, floor: float) -> tuple[float, float]:
+    """Colour limits: ±max|v| if symmetric, else the data range extended to include 0, so a
+    nearly uniform field is not stretched over the whole colour map (a 0.5 % difference
+    between two runs would otherwise read as opposite ends of the scale). Never narrower
+    than ``floor``."""
     values = np.concatenate([np.ravel(a) for a in arrays])
+    floor = max(float(floor), 1e-300)
     if symmetric:
-        m = float(np.max(np.abs(values))) or 1e-12
+        m = max(float(np.max(np.abs(values))), floor)
         return -m, m
-    lo, hi = float(values.min()), float(values.max())
-    if hi - lo < 1e-12 * max(abs(lo), abs(hi), 1.0):
-        lo, hi = lo - 0.5 * max(abs(lo), 1e-12), hi + 0.5 * max(abs(hi), 1e-12)
+    vmin, vmax = float(values.min()), float(values.max())
+    lo, hi = min(vmin, 0.0), max(vmax, 0.0)
+    if hi - lo < floor:
+        lo, hi = (0.0, floor) if vmin >= 0 else (-floor, 0.0) if vmax <= 0 else (-floor, floor)
     return lo, hi
 
 
@@ -208,17 +235,17 @@ def field_comparison(
         )
     renderer = PanelRenderer(window_size)
     fig, axes = plt.subplots(len(steps), 3, figsize=figsize, squeeze=False)
-    fig.subplots_adjust(left=0.01, right=0.91, bottom=0.01, top=0.93, wspace=0.35, hspace=0.08)
+    fig.subplots_adjust(left=0.03, right=0.93, bottom=0.01, top=0.9, wspace=0.35, hspace=0.08)
     try:
         for row, step in enumerate(steps):
             ref_v = field_on_mesh(reference, quantity, step, n_el)
             sur_v = field_on_mesh(surrogate, quantity, step, n_el)
             diff = sur_v - ref_v
-            signed = bool(ref_v.min() < 0 < ref_v.max() or sur_v.min() < 0 < sur_v.max())
-            clim = _limits(ref_v, sur_v, symmetric=signed)
+            floor = NOISE_FRACTION * max(q.magnitude(reference, step), q.magnitude(surrogate, step))
+            signed = bool(min(ref_v.min(), sur_v.min()) < -floor and max(ref_v.max(), sur_v.max()) > floor)
+            clim = _limits(ref_v, sur_v, symmetric=signed, floor=floor)
             cmap = "coolwarm" if signed else "viridis"
-            # a difference below 1e-6 of the field is round-off: do not blow it up to full colour
-            dlim = _limits(diff, np.array([1e-6 * max(abs(clim[0]), abs(clim[1]))]), symmetric=True)
+            dlim = _limits(diff, symmetric=True, floor=floor)
             panels = (
                 (reference, ref_v, clim, cmap, labels[0]),
                 (surrogate, sur_v, clim, cmap, labels[1]),
@@ -228,12 +255,15 @@ def field_comparison(
                 image = renderer.render(deformed_grid(ds, elements, step, deformation_scale), values, q.location, lim, cm)
                 ax = axes[row, col]
                 ax.imshow(image)
+                if float(np.max(np.abs(values))) < floor:
+                    ax.text(0.5, 0.01, "zero to round-off", transform=ax.transAxes, ha="center", va="bottom",
+                            fontsize=8, color="0.3")
                 ax.set_xticks([])
                 ax.set_yticks([])
                 for spine in ax.spines.values():
                     spine.set_visible(False)
                 if row == 0:
-                    ax.set_title(name, fontsize=10)
+                    ax.set_title(textwrap.fill(name, 26), fontsize=9)
                 if col == 0:
                     ax.set_ylabel(f"step {step}", fontsize=10)
                 if col in (1, 2):

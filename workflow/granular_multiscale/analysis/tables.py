@@ -1,7 +1,7 @@
 """Tables of the report: speedup (the paper's Table 4 layout), accuracy, headline numbers.
 
-Run times are those recorded in the run files (the sum of the per-step wall times of the
-FEM solve, RVE preparation excluded, as the paper's Table 4 times the FEM–DEM run itself);
+Run times are those recorded in the run files (the solver's load-step loop, RVE preparation
+and file writing excluded, as the paper's Table 4 times the FEM–DEM run itself);
 speedups are the reference run's wall time over the method's, both measured on this
 machine in the same workflow run. The paper's own figures are a separate, labelled row.
 """
@@ -36,7 +36,13 @@ SPEEDUP_COLUMNS = (
 
 
 def run_wall_time(ds: xr.Dataset) -> float:
-    """Wall time of the FEM run in s: the sum of the per-step times (step 0 is the initial state)."""
+    """Wall time of the FEM run in s: the solver's whole load-step loop (attr ``time_run_s``),
+    else the sum of the per-step times (step 0, the initial state, included)."""
+    if "time_run_s" in ds.attrs:
+        total = float(ds.attrs["time_run_s"])
+        if not np.isfinite(total) or total < 0:
+            raise ValueError(f"attr time_run_s is {total}")
+        return total
     wall = np.asarray(ds["wall_time"].values, dtype=float)
     if not np.all(np.isfinite(wall)) or np.any(wall < 0):
         raise ValueError("wall_time holds negative or non-finite values")
@@ -159,5 +165,113 @@ def write_csv(table: pd.DataFrame, out: str | Path, float_format: str = "%.6g") 
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.tmp")
     table.to_csv(tmp, index=False, float_format=float_format)
+    os.replace(tmp, out)
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# accuracy of one run against the reference
+
+
+ACCURACY_COLUMNS = (
+    "method",
+    "path",
+    "stress_mae_heldout_kpa",
+    "stress_mae_train_kpa",
+    "stress_mae_all_kpa",
+    "top_force_max_rel_pct",
+    "top_force_rms_rel_pct",
+    "volumetric_strain_max_abs_pct",
+    "newton_per_step",
+)
+
+
+def accuracy_row(reference: xr.Dataset, run: xr.Dataset, method: str, path: str,
+                 train_gp=None, heldout_gp=None) -> dict:
+    """Errors of ``run`` against ``reference`` (same mesh and path), over steps 1..n.
+
+    Stress MAE: mean |σ − σ_ref| over steps, the six components and the Gauss points of each
+    group (kPa). Top-force errors are relative to the largest reference top force
+    (max_k |F_ref|), so the near-zero force at the end of unloading does not blow them up.
+    """
+    if reference.sizes["step"] != run.sizes["step"] or reference.sizes["gp"] != run.sizes["gp"]:
+        raise ValueError(f"{method}: not the reference's mesh and load path (steps or Gauss points differ)")
+    sl = slice(1, None)
+    err = np.abs(run["stress"].transpose("step", "gp", "comp").values[sl]
+                 - reference["stress"].transpose("step", "gp", "comp").values[sl])
+    per_gp = err.mean(axis=(0, 2)) * 1e-3
+    def group(ids):
+        if ids is None or len(ids) == 0:
+            return float("nan")
+        return float(per_gp[np.asarray(ids, dtype=int)].mean())
+    f_ref = np.asarray(reference["top_force"].values, dtype=float)[sl]
+    f_run = np.asarray(run["top_force"].values, dtype=float)[sl]
+    scale = max(float(np.max(np.abs(f_ref))), 1e-300)
+    dv = np.abs(np.asarray(run["volumetric_strain"].values)[sl] - np.asarray(reference["volumetric_strain"].values)[sl])
+    iterations = np.asarray(run["newton_iterations"].values, dtype=float)[sl]
+    return {
+        "method": method,
+        "path": path,
+        "stress_mae_heldout_kpa": group(heldout_gp),
+        "stress_mae_train_kpa": group(train_gp),
+        "stress_mae_all_kpa": float(per_gp.mean()),
+        "top_force_max_rel_pct": 100 * float(np.max(np.abs(f_run - f_ref))) / scale,
+        "top_force_rms_rel_pct": 100 * float(np.sqrt(np.mean((f_run - f_ref) ** 2))) / scale,
+        "volumetric_strain_max_abs_pct": 100 * float(dv.max()),
+        "newton_per_step": float(iterations.mean()),
+    }
+
+
+# --------------------------------------------------------------------------------------
+# HTML rendering (the report shows HTML inline; CSV is offered as a download)
+
+_HTML_STYLE = """
+body { font-family: sans-serif; font-size: 14px; margin: 1em; }
+table { border-collapse: collapse; }
+th, td { border: 1px solid #bbb; padding: 4px 8px; text-align: right; }
+th { background: #eee; }
+td:first-child, td:nth-child(2), th:first-child, th:nth-child(2) { text-align: left; }
+tr.reference td { color: #555; font-style: italic; background: #f7f7f7; }
+p.note { color: #444; max-width: 60em; }
+"""
+
+
+def _cell(value, digits: int) -> str:
+    if value is None or (isinstance(value, float) and not np.isfinite(value)):
+        return "–"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        if v != 0 and (abs(v) >= 1e5 or abs(v) < 1e-3):
+            return f"{v:.{digits}e}"
+        return f"{v:.{digits}g}" if abs(v) < 10 ** digits else f"{v:.0f}"
+    return str(value)
+
+
+def write_html_table(table: pd.DataFrame, out: str | Path, *, title: str, note: str = "",
+                     headers: Mapping[str, str] | None = None, reference_rows=None, digits: int = 4) -> Path:
+    """A small standalone HTML page with the table (rows in ``reference_rows`` greyed)."""
+    import html
+
+    headers = headers or {}
+    reference_rows = set(reference_rows or [])
+    head = "".join(f"<th>{html.escape(headers.get(c, c))}</th>" for c in table.columns)
+    body = []
+    for i, row in enumerate(table.itertuples(index=False)):
+        cls = ' class="reference"' if i in reference_rows else ""
+        cells = "".join(f"<td>{html.escape(_cell(v, digits))}</td>" for v in row)
+        body.append(f"<tr{cls}>{cells}</tr>")
+    page = (
+        f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
+        f"<style>{_HTML_STYLE}</style></head><body>\n<h3>{html.escape(title)}</h3>\n"
+        f"<table><thead><tr>{head}</tr></thead><tbody>\n" + "\n".join(body) + "\n</tbody></table>\n"
+        + (f"<p class=\"note\">{html.escape(note)}</p>\n" if note else "")
+        + "</body></html>\n"
+    )
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp")
+    tmp.write_text(page)
     os.replace(tmp, out)
     return out
