@@ -208,11 +208,11 @@ def global_response(
     for ax in (ax_f, ax_v):
         ax.set_xlabel("load step")
         ax.grid(alpha=0.3)
-    if len(marked_steps):
-        ax_f.text(0.99, 0.02, "dashed: steps " + ", ".join(str(s) for s in marked_steps) + " (field figures)",
-                  transform=ax_f.transAxes, ha="right", va="bottom", fontsize=7, color="0.4")
     ax_f.legend(fontsize=8)
-    fig.suptitle(f"{path_label}: top force and volumetric strain", fontsize=10)
+    note = ""
+    if len(marked_steps):
+        note = "\ndashed lines: steps " + ", ".join(str(s) for s in marked_steps) + " of the field figures"
+    fig.suptitle(f"{path_label}: top force and volumetric strain{note}", fontsize=10)
     return save_figure(fig, out, dpi)
 
 
@@ -275,22 +275,27 @@ def speed_vs_error(
     ``errors`` ({column: axis label}); one panel per error measure.
     """
     fig, axes = plt.subplots(1, len(errors), figsize=figsize, squeeze=False)
-    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.13, top=0.88, wspace=0.25)
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.13, top=0.88, wspace=0.25)
     for ax, (column, axis_label) in zip(axes[0], errors.items()):
         for k, row in enumerate(table.itertuples(index=False)):
             s = style(k)
             error = getattr(row, column)
             ax.scatter(error, row.wall_time_s, color=s["color"], marker=s["marker"] or "*",
                        s=120 if k == 0 else 60, edgecolors="k", linewidths=0.5, zorder=3, label=row.label)
-            ax.annotate(row.label, (error, row.wall_time_s), textcoords="offset points", xytext=(6, 4), fontsize=7)
         ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_xlabel(axis_label)
         ax.set_ylabel("wall time of the run (s)")
         ax.grid(alpha=0.3, which="both")
         lo, hi = ax.get_xlim()
-        ax.set_xlim(min(lo, 0.0) - 0.02 * (hi - lo), hi + 0.25 * (hi - lo))
+        ax.set_xlim(min(lo, 0.0) - 0.02 * (hi - lo), hi + 0.1 * (hi - lo))
         wt = table["wall_time_s"].to_numpy(dtype=float)
         ax.set_ylim(wt.min() / 3, wt.max() * 3)
+        if np.log10(wt.max() / wt.min()) < 1.0:
+            # less than a decade between the runs: label the minor ticks as well
+            ax.yaxis.set_minor_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+            ax.tick_params(axis="y", which="minor", labelsize=7)
     axes[0][0].legend(fontsize=7, loc="best")
     fig.suptitle("Speed vs error: each point one run on this machine (reference at error 0)", fontsize=10)
     return save_figure(fig, out, dpi)

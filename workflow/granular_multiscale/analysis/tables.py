@@ -159,7 +159,7 @@ def load_path_summary(path: LoadPath) -> dict:
     }
 
 
-def write_csv(table: pd.DataFrame, out: str | Path, float_format: str = "%.6g") -> Path:
+def write_csv(table: pd.DataFrame, out: str | Path, float_format: str = "%.10g") -> Path:
     """CSV written atomically (temporary name, then rename)."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
