@@ -257,6 +257,8 @@ rule headline:
         f"{OUT}/tables/headline.json",
     log:
         f"{OUT}/logs/analysis/headline.log",
+    benchmark:
+        f"{OUT}/benchmarks/analysis/headline.tsv"
     params:
         kind="headline",
         reference_label=REFERENCE_LABEL,
