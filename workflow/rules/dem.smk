@@ -1,1 +1,40 @@
-# Rules of this stage are added by its issue; see README.
+# FEM–DEM stage: RVE packings (YADE) and the FEM–DEM reference runs of every load path.
+#
+#   rve      {OUT}/rve/packing_<k>.yade.gz (k = 0..dem.n_packings-1) + {OUT}/rve/summary.json
+#   fem_dem  {OUT}/fem_dem/{path}.h5, checkpoint and RVE snapshots under {OUT}/checkpoints/fem_dem/
+#            (not declared outputs: a rerun after a kill resumes from them)
+
+PACKINGS = [f"{OUT}/rve/packing_{k}.yade.gz" for k in range(config["dem"]["n_packings"])]
+
+
+rule rve:
+    output:
+        packings=PACKINGS,
+        summary=f"{OUT}/rve/summary.json",
+    log:
+        f"{OUT}/logs/rve.log",
+    benchmark:
+        f"{OUT}/benchmarks/rve.tsv"
+    threads: min(config["dem"]["n_packings"], config["dem"]["n_workers"])
+    script:
+        "../../scripts/prepare_rve.py"
+
+
+rule fem_dem:
+    input:
+        packings=PACKINGS,
+    output:
+        f"{OUT}/fem_dem/{{path}}.h5",
+    log:
+        f"{OUT}/logs/fem_dem/{{path}}.log",
+    benchmark:
+        f"{OUT}/benchmarks/fem_dem/{{path}}.tsv"
+    params:
+        checkpoint=f"{OUT}/checkpoints/fem_dem/{{path}}.ckpt",
+    threads: config["dem"]["n_workers"]
+    script:
+        "../../scripts/run_fem_dem.py"
+
+
+if config["reference_material"] == "dem":
+    ALL_TARGETS += [reference_run(p) for p in PATH_NAMES]

@@ -1,0 +1,17 @@
+"""Rule rve: consolidate the RVE packing(s) with YADE; write them and a summary JSON."""
+
+from granular_multiscale.config import validate_config
+from granular_multiscale.dem.run import prepare_rves
+from granular_multiscale.runlog import setup_logging, timed_rule
+
+
+def main(config: dict, packings: list[str], summary: str, log: str | None, threads: int) -> None:
+    config = validate_config(config)
+    logger = setup_logging(log)
+    with timed_rule(logger, f"rve ({len(packings)} packing(s) of {config['dem']['n_spheres']} spheres)"):
+        prepare_rves(config, packings, summary, threads=threads, logger=logger)
+
+
+if __name__ == "__main__" or "snakemake" in globals():
+    main(dict(snakemake.config), list(snakemake.output.packings), snakemake.output.summary,  # noqa: F821
+         snakemake.log[0], snakemake.threads)  # noqa: F821

@@ -1,0 +1,380 @@
+"""RVE host: a process that keeps the YADE scenes of a group of Gauss points resident.
+
+Started as ``python -m granular_multiscale.dem.worker FD`` (see ``executors.spawn_host``); it
+talks to its driver over the socket ``FD`` with ``multiprocessing.connection`` messages
+``(command, arguments)`` and answers ``("ok", result)`` or ``("error", text)``.
+
+Rollback by ``fork``
+--------------------
+Every Newton trial of a load step must start from the converged state of the previous step.
+Serialising and re-loading a scene costs ~25 + 25 ms for 400 spheres (plus a full collider
+sort), more than the DEM increment itself. A single-threaded process can instead be
+*forked*: the child gets a copy-on-write image of every resident scene for ~5 ms per host
+(not per RVE) and only pays for the memory pages it touches. So:
+
+* the **holder** process owns the converged scenes and never steps them;
+* a **trial** forks a child that imposes the strain increments, answers the driver and
+  waits;
+* another trial in the same step: the child exits and the holder forks a fresh one;
+* ``commit``: the child tells the holder to exit and becomes the holder itself.
+
+Only one process of the lineage reads the driver's socket at a time. A small root process
+(a child subreaper) reaps whatever exits. YADE runs with one thread, so a trial computed in
+a child is bit-for-bit the trial a replay computes in the holder (checkpoint resume).
+
+Deformation imposed on an RVE: the *symmetric* strain increment Δε (the FEM passes small
+strains; the rigid-body spin of a Gauss point does not change its stress in a small-strain
+formulation, and rotating the cell would rotate the returned stress), as the constant
+velocity gradient ``velGrad = Δε / (N dt)`` over N DEM steps,
+N = clamp(ceil(max|Δεij| / (strain_rate · dt)), min_steps, max_steps); afterwards
+``velGrad = 0``. A zero increment returns the converged state without stepping.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import pickle
+import sys
+import time
+import traceback
+from multiprocessing.connection import Connection
+
+import numpy as np
+
+PR_SET_CHILD_SUBREAPER = 36
+
+
+def steps_for_increment(dstrain: np.ndarray, dt: float, strain_rate: float, min_steps: int, max_steps: int) -> int:
+    """DEM steps that impose a Voigt strain increment at (at most) the given strain rate."""
+    emax = float(np.abs(dstrain).max())
+    if emax == 0.0:
+        return 0
+    n = math.ceil(emax / (strain_rate * dt))
+    return int(min(max(n, min_steps), max_steps))
+
+
+class Host:
+    """The YADE side: one scene per Gauss point of this host (lives in holder/trial processes)."""
+
+    def __init__(self):
+        from .yade_env import import_yade
+
+        self.O = import_yade()
+        from yade import utils
+        from yade.minieigenHP import Matrix3
+
+        self.utils, self.Matrix3 = utils, Matrix3
+        self.gps: list[int] = []
+        self.scene_ids: list[int] = []
+        self.settings: dict = {}
+        self.stress = np.zeros((0, 6))
+        self.tangent = np.zeros((0, 6, 6))
+        self.n_spheres: list[int] = []
+
+    # ---- set-up -------------------------------------------------------------------
+    def _scene(self, k: int) -> None:
+        self.O.switchToScene(self.scene_ids[k])
+
+    def _ensure_scenes(self, n: int) -> None:
+        O = self.O
+        if not self.scene_ids:
+            self.scene_ids.append(O.thisScene)
+        while len(self.scene_ids) < n:
+            self.scene_ids.append(O.addScene())
+
+    def _apply_settings(self) -> None:
+        damping = self.settings.get("damping")
+        for e in self.O.engines:
+            if type(e).__name__ == "NewtonIntegrator" and damping is not None:
+                e.damping = float(damping)
+
+    def _respond(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        from .rve import _matrix3_to_numpy, _matrix6_to_numpy, stress_voigt
+
+        s, D = self.utils.getStressAndTangent(symmetry=True)
+        return stress_voigt(_matrix3_to_numpy(s)), _matrix6_to_numpy(D)
+
+    def load(self, gps: list[int], scenes: list[bytes], settings: dict) -> dict:
+        """Load one scene per Gauss point (YADE scene strings) and compute their response."""
+        self.gps = list(gps)
+        self.settings = dict(settings)
+        self._ensure_scenes(len(gps))
+        self.stress = np.zeros((len(gps), 6))
+        self.tangent = np.zeros((len(gps), 6, 6))
+        self.n_spheres = []
+        for k, blob in enumerate(scenes):
+            self._scene(k)
+            self.O.stringToScene(blob)
+            self._apply_settings()
+            if not self.O.periodic:
+                raise RuntimeError(f"the RVE of Gauss point {gps[k]} is not a periodic cell")
+            self.stress[k], self.tangent[k] = self._respond(k)
+            self.n_spheres.append(len(self.O.bodies))
+        return self.converged()
+
+    def load_packings(self, gps: list[int], which: list, packings: dict, settings: dict) -> dict:
+        """``packings``: {key: {"name": file name, "data": file bytes}} of packings saved by ``rve``;
+        ``which[k]``: the packing key of ``gps[k]``. Each packing is read once and copied into
+        its scenes through one scene string, so every RVE starts from the same bits whatever
+        host it lives on."""
+        import tempfile
+
+        self._ensure_scenes(max(len(gps), 1))
+        strings = {}
+        for key, item in packings.items():
+            with tempfile.TemporaryDirectory() as tmp:
+                path = os.path.join(tmp, os.path.basename(item["name"]))
+                with open(path, "wb") as f:
+                    f.write(item["data"])
+                self._scene(0)
+                self.O.load(path)
+                strings[key] = self.O.sceneToString()
+        return self.load(gps, [strings[w] for w in which], settings)
+
+    def load_snapshot(self, gps: list[int], files: list[str], settings: dict) -> dict:
+        """Load the scenes of ``gps`` from snapshot files written by :meth:`snapshot`."""
+        wanted, found = set(gps), {}
+        for path in files:
+            with open(path, "rb") as f:
+                content = pickle.load(f)
+            found.update({gp: blob for gp, blob in content["scenes"].items() if gp in wanted})
+        missing = sorted(wanted - set(found))
+        if missing:
+            raise FileNotFoundError(f"snapshot files {files} hold no scene for Gauss points {missing[:10]}")
+        return self.load(gps, [found[gp] for gp in gps], settings)
+
+    def converged(self) -> dict:
+        return {"gps": self.gps, "stress": self.stress.copy(), "tangent": self.tangent.copy(), "n_spheres": list(self.n_spheres)}
+
+    # ---- DEM ----------------------------------------------------------------------
+    def impose(self, dstrain: np.ndarray) -> dict:
+        """Impose one strain increment per scene (from its current state); mutates the scenes."""
+        from .rve import voigt_to_matrix3
+
+        O, cfg = self.O, self.settings
+        dstrain = np.asarray(dstrain, dtype=float).reshape(len(self.gps), 6)
+        stress, tangent = self.stress.copy(), self.tangent.copy()
+        steps = np.zeros(len(self.gps), dtype=np.int64)
+        dem_time = 0.0
+        particle_steps = 0
+        for k in range(len(self.gps)):
+            self._scene(k)
+            n = steps_for_increment(dstrain[k], O.dt, cfg["strain_rate"], cfg["min_steps"], cfg["max_steps"])
+            steps[k] = n
+            if n == 0:
+                continue
+            O.cell.velGrad = voigt_to_matrix3(dstrain[k] / (n * O.dt), self.Matrix3)
+            t0 = time.perf_counter()
+            step = O.step
+            for _ in range(n):
+                step()
+            # Forces are computed before particles move within a step: one more step at rest
+            # makes the contact forces (hence the stress) those of the fully deformed cell.
+            O.cell.velGrad = self.Matrix3.Zero
+            step()
+            dem_time += time.perf_counter() - t0
+            particle_steps += (n + 1) * self.n_spheres[k]
+            stress[k], tangent[k] = self._respond(k)
+            if not (np.isfinite(stress[k]).all() and np.isfinite(tangent[k]).all()):
+                raise FloatingPointError(f"non-finite stress or tangent in the RVE of Gauss point {self.gps[k]}")
+        return {"stress": stress, "tangent": tangent, "steps": steps, "dem_time": dem_time, "particle_steps": particle_steps}
+
+    def accept(self, result: dict) -> None:
+        self.stress, self.tangent = result["stress"], result["tangent"]
+
+    # ---- snapshots (checkpoints) ------------------------------------------------------
+    def snapshot(self, path: str) -> dict:
+        """Write every scene to ``path`` (pickled {gp: scene string}) and re-load them, so that a
+        run resumed from this file and this run continue from bit-identical states."""
+        t0 = time.perf_counter()
+        blobs = {}
+        for k, gp in enumerate(self.gps):
+            self._scene(k)
+            blobs[gp] = self.O.sceneToString()
+        tmp = f"{path}.tmp{os.getpid()}"
+        with open(tmp, "wb") as f:
+            pickle.dump({"gps": self.gps, "scenes": blobs}, f, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(tmp, path)
+        for k, gp in enumerate(self.gps):
+            self._scene(k)
+            self.O.stringToScene(blobs[gp])
+            self._apply_settings()
+        return {"time": time.perf_counter() - t0, "bytes": int(sum(len(b) for b in blobs.values()))}
+
+    def scene_strings(self) -> dict:
+        out = {}
+        for k, gp in enumerate(self.gps):
+            self._scene(k)
+            out[gp] = self.O.sceneToString()
+        return out
+
+
+# ------------------------------------------------------------------------ process lineage
+
+
+def _send_verdict(fd: int, verdict) -> None:
+    """Child -> holder, once: write the pickled verdict and close the pipe."""
+    data = memoryview(pickle.dumps(verdict))
+    try:
+        while data:
+            data = data[os.write(fd, data):]
+    finally:
+        os.close(fd)
+
+
+def _read_verdict(fd: int):
+    """Holder: block until the child writes its verdict and closes (None if it died silently)."""
+    chunks = []
+    try:
+        while chunk := os.read(fd, 1 << 16):
+            chunks.append(chunk)
+    finally:
+        os.close(fd)
+    return pickle.loads(b"".join(chunks)) if chunks else None
+
+
+def _handle_common(host: Host, cmd: str, args: dict):
+    """Commands a holder answers in place."""
+    if cmd == "load_packings":
+        return host.load_packings(args["gps"], args["which"], args["packings"], args["settings"])
+    if cmd == "load_snapshot":
+        return host.load_snapshot(args["gps"], args["files"], args["settings"])
+    if cmd == "replay":
+        result = host.impose(args["dstrain"])
+        host.accept(result)
+        return result
+    if cmd == "snapshot":
+        return host.snapshot(args["path"])
+    if cmd == "scene_strings":
+        return host.scene_strings()
+    if cmd == "converged":
+        return host.converged()
+    if cmd == "ping":
+        return {"pid": os.getpid()}
+    raise ValueError(f"unknown command {cmd!r}")
+
+
+def _trial_child(conn: Connection, host: Host, args: dict, verdict_fd: int) -> None:
+    """Run in a forked child: compute the trial, answer, then wait for the driver's verdict.
+
+    Returns only after ``commit`` (this process is then the holder); exits otherwise."""
+    try:
+        result = host.impose(args["dstrain"])
+    except Exception:
+        conn.send(("error", traceback.format_exc()))
+        _send_verdict(verdict_fd, ("failed", None))
+        os._exit(0)
+    conn.send(("ok", result))
+    while True:
+        try:
+            cmd, a = conn.recv()
+        except (EOFError, OSError):
+            _send_verdict(verdict_fd, ("close", None))
+            os._exit(0)
+        if cmd == "trial":
+            _send_verdict(verdict_fd, ("retry", a))
+            os._exit(0)
+        if cmd == "rollback":
+            _send_verdict(verdict_fd, ("rollback", None))
+            os._exit(0)
+        if cmd == "commit":
+            host.accept(result)
+            _send_verdict(verdict_fd, ("commit", None))
+            conn.send(("ok", None))
+            return
+        if cmd == "close":
+            _send_verdict(verdict_fd, ("close", None))
+            conn.send(("ok", None))
+            os._exit(0)
+        if cmd == "ping":
+            conn.send(("ok", {"pid": os.getpid()}))
+            continue
+        conn.send(("error", f"command {cmd!r} is not allowed while a trial is pending (commit or rollback first)"))
+
+
+def _trial(conn: Connection, host: Host, args: dict) -> bool:
+    """In the holder: fork trial children until one is committed (then this process exits)
+    or the driver rolls back (returns True: still the holder). Returns False in the child that
+    became the holder (it continues the serve loop)."""
+    while True:
+        r, w = os.pipe()
+        pid = os.fork()
+        if pid == 0:
+            os.close(r)
+            _trial_child(conn, host, args, w)
+            return False
+        os.close(w)
+        verdict = _read_verdict(r)
+        if verdict is None:  # the child died without a word
+            os.waitpid(pid, 0)
+            conn.send(("error", f"DEM trial process {pid} of Gauss points {host.gps[:5]}... died"))
+            return True
+        kind, payload = verdict
+        if kind == "commit":
+            os._exit(0)
+        os.waitpid(pid, 0)
+        if kind == "retry":
+            args = payload
+            continue
+        if kind == "rollback":
+            conn.send(("ok", None))
+            return True
+        if kind == "failed":
+            return True
+        os._exit(0)  # close
+
+
+def serve(conn: Connection) -> None:
+    """Holder loop (also continued by a trial child after commit)."""
+    host = Host()
+    while True:
+        try:
+            cmd, args = conn.recv()
+        except (EOFError, OSError):
+            os._exit(0)
+        if cmd == "trial":
+            _trial(conn, host, args)
+            continue
+        if cmd in ("commit", "rollback"):  # no trial pending: nothing to accept or undo
+            conn.send(("ok", None))
+            continue
+        if cmd == "close":
+            conn.send(("ok", None))
+            os._exit(0)
+        try:
+            conn.send(("ok", _handle_common(host, cmd, args)))
+        except Exception:
+            conn.send(("error", traceback.format_exc()))
+
+
+def main(argv: list[str]) -> None:
+    fd = int(argv[0])
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0)
+    except Exception:  # not Linux: exited holders are then reaped by init
+        pass
+    from .yade_env import import_yade
+
+    import_yade()  # before the first fork: every descendant shares the loaded libraries
+    conn = Connection(fd)
+    pid = os.fork()
+    if pid == 0:
+        sys.stdout.flush()
+        serve(conn)
+        os._exit(0)
+    conn.close()
+    # root: reap the lineage until nothing is left
+    while True:
+        try:
+            os.wait()
+        except ChildProcessError:
+            break
+        except InterruptedError:
+            continue
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

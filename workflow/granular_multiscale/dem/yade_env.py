@@ -1,0 +1,46 @@
+"""Start YADE the same way in every process that runs it.
+
+YADE is imported only in processes dedicated to it (RVE preparation, RVE hosts):
+``from yade import *`` and YADE's start-up rebind module globals, print to stdout and read
+``OMP_NUM_THREADS`` once. One OpenMP thread per process keeps every DEM step bit-for-bit
+reproducible and lets the process be forked safely (a single-threaded process is the only
+kind ``fork`` copies faithfully).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+ENV_THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def child_env() -> dict:
+    """Environment for a process that will import YADE."""
+    env = dict(os.environ)
+    env.update(ENV_THREADS)
+    return env
+
+
+def import_yade():
+    """Import YADE with one thread; returns the ``Omega`` singleton. Call once per process."""
+    os.environ.update(ENV_THREADS)
+    import yade  # noqa: F401  (side effects: plugin registration)
+    from yade.wrapper import Omega
+
+    omega = Omega()
+    if omega.numThreads != 1:
+        raise RuntimeError(
+            f"YADE runs with {omega.numThreads} threads; set OMP_NUM_THREADS=1 before importing it"
+        )
+    return omega
+
+
+def run_module(module: str, args: list[str], timeout: float | None = None) -> subprocess.CompletedProcess:
+    """Run ``python -m module args`` with the YADE environment; raise with its stderr on failure."""
+    cmd = [sys.executable, "-m", module, *args]
+    out = subprocess.run(cmd, env=child_env(), capture_output=True, text=True, timeout=timeout)
+    if out.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed (exit {out.returncode}):\n{out.stderr[-4000:]}")
+    return out
