@@ -20,7 +20,7 @@ def main(config: dict, path_name: str, output: str, log: str | None) -> None:
             "x".join(map(str, problem.elements)), problem.n_gauss_points, problem.platen,
             problem.confining_pressure, path_name, load_path.n_steps,
         )
-        with make_material("elastoplastic", problem.n_gauss_points, config) as material:
+        with make_material("elastoplastic", problem.n_material_points, config) as material:
             ds = problem.run(material, load_path, logger=logger)
         write_run(ds, output, config)
         logger.info("wrote %s", output)

@@ -15,7 +15,23 @@ only moves the boundary nodes and lets the first iteration sort the interior out
 The material set is evaluated from its converged state at every iteration (evaluate is
 repeatable) and committed only after convergence, so a failed attempt leaves it untouched
 and a cutback simply starts again from the same converged state.
+
+Options (config section ``newton``):
+
+* ``line_search``: backtracking on the residual norm. The full step is tried first and
+  kept when ‖R_free‖ drops by the Armijo factor (1 − 10⁻⁴ α); otherwise α is halved up to
+  ``line_search_max`` times. The evaluation at the accepted step is the next iteration's,
+  so an accepted full step costs nothing extra. A trial the material refuses
+  (MaterialPointError, e.g. a point beyond the cone apex) counts as a rejected length
+  instead of failing the attempt.
+* ``tangent_every`` = k > 1: modified Newton. The stiffness is reassembled only at
+  iterations k, 2k, …; iteration 0 reuses the stiffness of the last converged state (the
+  predictor's). Evaluations in between call ``evaluate(strain, need_tangent=False)``, so a
+  material whose tangent is expensive (autodiff surrogate) is not asked for it. The tangent
+  of the converged state is always obtained (one extra evaluation when the converged
+  iteration did not ask for it): the run file records it and the next step's predictor uses it.
 """
+
 
 from __future__ import annotations
 
@@ -34,11 +50,40 @@ class NewtonSettings:
     tolerance: float = 1e-8
     max_iterations: int = 25
     max_cutbacks: int = 4
+    line_search: bool = False
+    line_search_max: int = 5
+    tangent_every: int = 1
+    tangent_repair: str = "none"
+    tangent_floor: float = 1e-3
+
+    def __post_init__(self):
+        checks = {
+            "tolerance": self.tolerance > 0,
+            "max_iterations": self.max_iterations >= 1,
+            "max_cutbacks": self.max_cutbacks >= 0,
+            "line_search_max": self.line_search_max >= 1,
+            "tangent_every": self.tangent_every >= 1,
+            "tangent_repair": self.tangent_repair in ("none", "eig_floor"),
+            "tangent_floor": 0 < self.tangent_floor < 1,
+        }
+        for key, ok in checks.items():
+            if not ok:
+                raise ValueError(f"config key 'newton.{key}': invalid value {getattr(self, key)!r} (see the config schema)")
 
     @classmethod
     def from_config(cls, config: dict) -> "NewtonSettings":
         section = config["newton"]
-        return cls(float(section["tolerance"]), int(section["max_iterations"]), int(section["max_cutbacks"]))
+        defaults = cls()
+        return cls(
+            tolerance=float(section["tolerance"]),
+            max_iterations=int(section["max_iterations"]),
+            max_cutbacks=int(section["max_cutbacks"]),
+            line_search=bool(section.get("line_search", defaults.line_search)),
+            line_search_max=int(section.get("line_search_max", defaults.line_search_max)),
+            tangent_every=int(section.get("tangent_every", defaults.tangent_every)),
+            tangent_repair=str(section.get("tangent_repair", defaults.tangent_repair)),
+            tangent_floor=float(section.get("tangent_floor", defaults.tangent_floor)),
+        )
 
 
 class StepFailed(RuntimeError):
@@ -56,6 +101,8 @@ class Timers:
     solve: float = 0.0
     iterations: int = 0  # Newton corrections (linear solves after the predictor)
     evaluations: int = 0  # material evaluations, failed attempts included
+    tangent_evaluations: int = 0  # evaluations that asked the material for its tangent
+    line_search_cuts: int = 0  # step lengths rejected by the line search
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -101,6 +148,63 @@ class DirichletSystem:
         return spla.spsolve(self.ops.csr(data).tocsc(), b, permc_spec="MMD_AT_PLUS_A")
 
 
+@dataclass
+class _Trial:
+    """One material evaluation at displacement u and the residual it gives."""
+
+    u: np.ndarray
+    strain: np.ndarray
+    stress: np.ndarray
+    tangent: np.ndarray | None
+    residual: np.ndarray
+    norm: float
+    reference: float
+
+
+def _evaluate(ops, system, material, f_ext, u, need_tangent: bool, timers: Timers, iteration: int) -> _Trial:
+    t0 = time.perf_counter()
+    strain = ops.strain(u)
+    t1 = time.perf_counter()
+    timers.evaluations += 1
+    timers.tangent_evaluations += int(need_tangent)
+    try:
+        stress, tangent = material.evaluate(strain, need_tangent=need_tangent)
+    except MaterialPointError as error:
+        raise StepFailed(f"material failed at iteration {iteration}: {error}") from error
+    t2 = time.perf_counter()
+    residual = ops.internal_force(stress) - f_ext
+    t3 = time.perf_counter()
+    timers.material += t2 - t1
+    timers.assembly += (t1 - t0) + (t3 - t2)
+    if need_tangent and tangent is None:
+        raise TypeError(f"{type(material).__name__}.evaluate(need_tangent=True) returned no tangent")
+    c, free = system.constrained, system.free
+    norm = float(np.linalg.norm(residual[free]))
+    reference = max(float(np.linalg.norm(f_ext)), float(np.linalg.norm(residual[c])), 1.0)
+    return _Trial(u, strain, stress, tangent, residual, norm, reference)
+
+
+def _line_search(ops, system, material, f_ext, u, du, current: _Trial, need_tangent: bool,
+                 settings: NewtonSettings, timers: Timers, iteration: int) -> _Trial:
+    """Backtracking along du: the first length with sufficient decrease of ‖R_free‖, else the best tried."""
+    alpha, best, failure = 1.0, None, None
+    for _ in range(settings.line_search_max + 1):
+        try:
+            trial = _evaluate(ops, system, material, f_ext, u + alpha * du, need_tangent, timers, iteration)
+        except StepFailed as error:
+            trial, failure = None, error
+        if trial is not None and np.isfinite(trial.norm):
+            if trial.norm <= (1.0 - 1e-4 * alpha) * current.norm:
+                return trial
+            if best is None or trial.norm < best.norm:
+                best = trial
+        timers.line_search_cuts += 1
+        alpha *= 0.5
+    if best is None:
+        raise StepFailed(f"line search: no admissible step length at iteration {iteration} ({failure})")
+    return best
+
+
 def newton_solve(
     ops: GaussPointOperators,
     system: DirichletSystem,
@@ -113,55 +217,58 @@ def newton_solve(
     timers: Timers,
 ) -> Converged:
     """Newton from the converged `u_start` to prescribed values `u_constrained`; raises StepFailed."""
-    c, free = system.constrained, system.free
+    c = system.constrained
     u = u_start.copy()
     du_c = np.zeros_like(u)
     du_c[c] = u_constrained - u_start[c]
     u += du_c
-    if previous is not None and np.any(du_c[c] != 0):
+    K_data = None  # stiffness used for the corrections (refreshed on schedule)
+    moves = bool(np.any(du_c[c] != 0))
+    if previous is not None and (moves or settings.tangent_every > 1):
         t0 = time.perf_counter()
         K_prev = ops.stiffness_data(previous.tangent)
         t1 = time.perf_counter()
-        u += system.solve(K_prev, -(previous.residual + ops.csr(K_prev) @ du_c))
         timers.assembly += t1 - t0
-        timers.solve += time.perf_counter() - t1
+        if moves:
+            u += system.solve(K_prev, -(previous.residual + ops.csr(K_prev) @ du_c))
+            timers.solve += time.perf_counter() - t1
+        if settings.tangent_every > 1:
+            K_data = K_prev
 
+    def wants_tangent(iteration: int) -> bool:
+        # full Newton: always; modified Newton: every k-th iteration, or when no stiffness exists yet
+        return iteration % settings.tangent_every == 0 and (iteration > 0 or K_data is None)
+
+    current = _evaluate(ops, system, material, f_ext, u, wants_tangent(0), timers, 0)
     norms: list[float] = []
     for iteration in range(settings.max_iterations + 1):
-        t0 = time.perf_counter()
-        strain = ops.strain(u)
-        t1 = time.perf_counter()
-        timers.evaluations += 1
-        try:
-            # The tangent is always wanted: for the next correction, or, at convergence, as
-            # the recorded tangent of the converged state and the next step's predictor.
-            stress, tangent = material.evaluate(strain, need_tangent=True)
-        except MaterialPointError as error:
-            raise StepFailed(f"material failed at iteration {iteration}: {error}") from error
-        t2 = time.perf_counter()
-        residual = ops.internal_force(stress) - f_ext
-        t3 = time.perf_counter()
-        timers.material += t2 - t1
-        timers.assembly += (t1 - t0) + (t3 - t2)
-        norm = float(np.linalg.norm(residual[free]))
-        reference = max(float(np.linalg.norm(f_ext)), float(np.linalg.norm(residual[c])), 1.0)
-        norms.append(norm)
-        if not np.isfinite(norm):
+        norms.append(current.norm)
+        if not np.isfinite(current.norm):
             raise StepFailed(f"non-finite residual at iteration {iteration}")
-        if norm <= settings.tolerance * reference:
-            return Converged(u, strain, stress, tangent, residual, norms, reference)
+        if current.norm <= settings.tolerance * current.reference:
+            if current.tangent is None:
+                # the converged state's tangent: recorded in the run file and used by the next predictor
+                current = _evaluate(ops, system, material, f_ext, current.u, True, timers, iteration)
+            return Converged(current.u, current.strain, current.stress, current.tangent, current.residual, norms,
+                             current.reference)
         if iteration == settings.max_iterations:
             break
         t0 = time.perf_counter()
-        K_data = ops.stiffness_data(tangent)
+        if current.tangent is not None and (K_data is None or wants_tangent(iteration)):
+            K_data = ops.stiffness_data(current.tangent)
         t1 = time.perf_counter()
-        du = system.solve(K_data, -residual)
+        du = system.solve(K_data, -current.residual)
         t2 = time.perf_counter()
         timers.assembly += t1 - t0
         timers.solve += t2 - t1
         timers.iterations += 1
-        u += du
+        if settings.line_search:
+            current = _line_search(ops, system, material, f_ext, current.u, du, current, wants_tangent(iteration + 1),
+                                   settings, timers, iteration + 1)
+        else:
+            current = _evaluate(ops, system, material, f_ext, current.u + du, wants_tangent(iteration + 1), timers,
+                                iteration + 1)
     raise StepFailed(
         f"no convergence in {settings.max_iterations} iterations "
-        f"(relative residual {norms[-1] / reference:.3e} > {settings.tolerance:.1e})"
+        f"(relative residual {norms[-1] / current.reference:.3e} > {settings.tolerance:.1e})"
     )

@@ -16,6 +16,27 @@ Boundary conditions (z is the axial direction, specimen [0, Lx]×[0, Ly]×[0, H]
 * the material points start from the consolidated stress −p0·1, which is in equilibrium
   with the confinement at zero displacement (step 0 solves and records this state).
 
+Quarter symmetry (``specimen.symmetry: quarter``): only the quarter x ≥ Lx/2, y ≥ Ly/2 is
+meshed, in the full specimen's coordinates (so Gauss-point and node positions compare
+directly with a full run), with ceil(nx/2)×ceil(ny/2)×nz elements — exactly the full mesh's
+elements there when nx and ny are even, 4× fewer Gauss points. The cut planes carry the
+symmetry conditions u_x = 0 on x = Lx/2 and u_y = 0 on y = Ly/2; the confinement acts on
+the two outer lateral faces; with smooth platens these conditions already remove the
+rigid-body motions (no pins). ``top_force`` is reported for the FULL specimen (4 × the
+quarter's reaction), and ``volumetric_strain`` is the quarter's, which equals the full
+specimen's for a symmetric field. Valid when the specimen, its material and its loading
+are symmetric about both planes (README, "Quarter symmetry").
+
+Uniform field (``specimen.uniform_field: true``, smooth platens only): the run takes a
+material set of ONE point (:attr:`TriaxialProblem.n_material_points`) and broadcasts its
+answer (``materials.wrappers.UniformField``); a trial field that is not homogeneous stops the
+run with an error naming the Gauss points. A set of all points is accepted too (with a
+warning that it does the work of every point).
+
+Tangent repair (``newton.tangent_repair``): the run wraps whatever material set it gets in
+``materials.wrappers.TangentRepair``; the run file records the repaired tangents and per step
+``tangent_non_spd_points`` / ``tangent_repaired_points``.
+
 Recorded per step (data contract, see ``granular_multiscale.data``): strains, stresses,
 tangents and history variables at the Gauss points, nodal displacements, axial strain,
 top force (tension positive, = ∫σzz over the top face = the platen reaction), volumetric
@@ -38,6 +59,7 @@ import numpy as np
 import xarray as xr
 
 from ..history import HIST, history_from_sequence
+from ..materials.wrappers import TangentRepair, UniformField
 from ..paths import LoadPath
 from ..tensors import COMP, TCOMP, tangent_to_upper
 from .assembly import POINTS_PER_ELEMENT, GaussPointOperators
@@ -52,7 +74,8 @@ from .newton import (
     newton_solve,
 )
 
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2
+SYMMETRIES = ("none", "quarter")
 
 
 class TriaxialProblem:
@@ -63,31 +86,53 @@ class TriaxialProblem:
         confining_pressure: float = 1.0e5,
         platen: str = "rough",
         newton: NewtonSettings | None = None,
+        symmetry: str = "none",
+        uniform_field: bool = False,
     ):
         if platen not in ("rough", "smooth"):
             raise ValueError(f"specimen.platen must be 'rough' or 'smooth', got {platen!r}")
         if not confining_pressure > 0:
             raise ValueError(f"specimen.confining_pressure must be > 0, got {confining_pressure}")
+        if symmetry not in SYMMETRIES:
+            raise ValueError(f"specimen.symmetry must be one of {SYMMETRIES}, got {symmetry!r}")
+        if uniform_field and platen != "smooth":
+            raise ValueError("config key 'specimen.uniform_field': a uniform field needs specimen.platen 'smooth' "
+                             "(rough platens restrain the ends, so the field is never homogeneous)")
         self.size = tuple(float(v) for v in size)
         self.elements = tuple(int(v) for v in elements)
         self.confining_pressure = float(confining_pressure)
         self.platen = platen
         self.newton = newton or NewtonSettings()
+        self.symmetry = symmetry
+        self.uniform_field = bool(uniform_field)
 
-        self.mesh = box_mesh(self.size, self.elements)
+        if symmetry == "quarter":
+            # the quarter x >= Lx/2, y >= Ly/2, in the full specimen's coordinates
+            model_size = (self.size[0] / 2, self.size[1] / 2, self.size[2])
+            origin = (self.size[0] / 2, self.size[1] / 2, 0.0)
+            self.mesh_elements = (-(-self.elements[0] // 2), -(-self.elements[1] // 2), self.elements[2])
+            self.force_factor = 4.0
+        else:
+            model_size, origin = self.size, (0.0, 0.0, 0.0)
+            self.mesh_elements = self.elements
+            self.force_factor = 1.0
+        self.mesh = box_mesh(model_size, self.mesh_elements, origin)
         self.ops = GaussPointOperators(self.mesh)
         self.faces = face_nodes(self.mesh, self.size)
         self.height = self.size[2]
         self.top_area = self.size[0] * self.size[1]
         self.volume = self.top_area * self.height
-        self.f_ext = self.ops.pressure_load(lateral_facets(self.mesh, self.size), self.confining_pressure)
+        loaded = ("xmax", "ymax") if symmetry == "quarter" else ("xmin", "xmax", "ymin", "ymax")
+        self.f_ext = self.ops.pressure_load(lateral_facets(self.mesh, self.size, loaded), self.confining_pressure)
 
         dofs = self.ops.node_dofs
         bottom, top = self.faces["bottom"], self.faces["top"]
         fixed = [dofs(bottom, 2)]
         if platen == "rough":
             fixed += [dofs(bottom, 0), dofs(bottom, 1), dofs(top, 0), dofs(top, 1)]
-        else:
+        if symmetry == "quarter":
+            fixed += [dofs(self.faces["xmin"], 0), dofs(self.faces["ymin"], 1)]  # the two cut planes
+        elif platen == "smooth":
             origin = self._node_at((0.0, 0.0, 0.0))
             x_corner = self._node_at((self.size[0], 0.0, 0.0))
             fixed += [dofs(origin, 0), dofs(origin, 1), dofs(x_corner, 1)]
@@ -105,6 +150,8 @@ class TriaxialProblem:
             confining_pressure=spec["confining_pressure"],
             platen=spec["platen"],
             newton=NewtonSettings.from_config(config),
+            symmetry=spec.get("symmetry", "none"),
+            uniform_field=bool(spec.get("uniform_field", False)),
         )
 
     # -- geometry ---------------------------------------------------------------------
@@ -119,6 +166,11 @@ class TriaxialProblem:
     @property
     def n_elements(self) -> int:
         return self.ops.n_elements
+
+    @property
+    def n_material_points(self) -> int:
+        """Points the material set must have: 1 with specimen.uniform_field, else one per Gauss point."""
+        return 1 if self.uniform_field else self.n_gauss_points
 
     @property
     def gp_positions(self) -> np.ndarray:
@@ -140,8 +192,9 @@ class TriaxialProblem:
         return values
 
     def top_force(self, residual: np.ndarray) -> float:
-        """Platen reaction in N, tension positive: Σ over the top nodes of (f_int − f_ext)_z."""
-        return float(residual[self.top_dofs].sum())
+        """Platen reaction of the full specimen in N, tension positive: Σ over the top nodes of
+        (f_int − f_ext)_z (× 4 with quarter symmetry)."""
+        return self.force_factor * float(residual[self.top_dofs].sum())
 
     def volumetric_strain(self, strain: np.ndarray) -> float:
         """Volume change of the specimen / volume (tension positive), = mean trace of ε."""
@@ -154,6 +207,8 @@ class TriaxialProblem:
             "elements": self.elements,
             "confining_pressure": self.confining_pressure,
             "platen": self.platen,
+            "symmetry": self.symmetry,
+            "uniform_field": self.uniform_field,
             "newton": self.newton.__dict__,
             "path": [load_path.name, [list(s) for s in load_path.segments]],
             "material": [getattr(material, "method", type(material).__name__), material.n_points],
@@ -162,6 +217,26 @@ class TriaxialProblem:
         return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()
 
     # -- solving ----------------------------------------------------------------------
+    def _wrap(self, material, logger: logging.Logger):
+        """The material set as the solver sees it: uniform-field broadcast and tangent repair as configured."""
+        n = material.n_points
+        if self.uniform_field and n == 1 and self.n_gauss_points > 1:
+            if self.newton.tangent_repair != "none":  # repair the one point, then broadcast
+                material = TangentRepair(material, self.newton.tangent_repair, self.newton.tangent_floor)
+            return UniformField(material, self.n_gauss_points)
+        if n != self.n_gauss_points:
+            expected = "1 (specimen.uniform_field) or " if self.uniform_field else ""
+            raise ValueError(
+                f"material set has {n} points, the mesh {self.n_gauss_points} Gauss points (expected {expected}"
+                f"{self.n_gauss_points})"
+            )
+        if self.uniform_field and n > 1:
+            logger.warning("specimen.uniform_field is set but the material set has all %d points: every point is "
+                           "evaluated (make it with problem.n_material_points = 1 point to save the work)", n)
+        if self.newton.tangent_repair != "none":
+            material = TangentRepair(material, self.newton.tangent_repair, self.newton.tangent_floor)
+        return material
+
     def _solve_step(self, material, step: int, a_from: float, a_to: float, u: np.ndarray,
                     previous: Converged | None, timers: Timers):
         """Advance from axial strain a_from to a_to, halving on failure; commits every sub-step."""
@@ -192,11 +267,8 @@ class TriaxialProblem:
             logger: logging.Logger | None = None, progress: bool = True) -> xr.Dataset:
         """Run the load path; returns the data-contract Dataset (write it with data.write_run)."""
         logger = logger or logging.getLogger("granular_multiscale.fem")
-        if material.n_points != self.n_gauss_points:
-            raise ValueError(
-                f"material set has {material.n_points} points, the mesh {self.n_gauss_points} Gauss points"
-            )
         method = method or getattr(material, "method", "material")
+        material = self._wrap(material, logger)
         axial = load_path.axial_strain()
         phases = load_path.phase()
         signature = self.signature(material, load_path)
@@ -204,7 +276,7 @@ class TriaxialProblem:
 
         records: dict[str, list] = {k: [] for k in (
             "strain", "stress", "tangent", "displacement", "axial_strain", "top_force", "volumetric_strain",
-            "newton_iterations", "material_evaluations", "residual_norm", "residual_reference", "cutbacks",
+            "newton_iterations", "material_evaluations", "tangent_evaluations", "residual_norm", "residual_reference", "cutbacks",
             "wall_time", "step_info")}
         u = np.zeros(self.ops.n_dofs)
         previous: Converged | None = None
@@ -223,7 +295,7 @@ class TriaxialProblem:
         t_run = time.perf_counter()
         for step in range(first, load_path.n_steps + 1):
             t0 = time.perf_counter()
-            evaluations_before = timers.evaluations
+            evaluations_before, tangents_before = timers.evaluations, timers.tangent_evaluations
             a_from = axial[step - 1] if step > 0 else 0.0
             result, stats = self._solve_step(material, step, a_from, axial[step], u, previous, timers)
             u, previous = result.u, result
@@ -239,6 +311,7 @@ class TriaxialProblem:
             records["volumetric_strain"].append(self.volumetric_strain(result.strain))
             records["newton_iterations"].append(stats["iterations"])
             records["material_evaluations"].append(timers.evaluations - evaluations_before)
+            records["tangent_evaluations"].append(timers.tangent_evaluations - tangents_before)
             records["residual_norm"].append(list(result.residual_norms))
             records["residual_reference"].append(result.reference)
             records["cutbacks"].append(stats["cutbacks"])
@@ -265,6 +338,8 @@ class TriaxialProblem:
             "time_run_s": total,
             "total_newton_corrections": timers.iterations,
             "total_material_evaluations": timers.evaluations,
+            "total_tangent_evaluations": timers.tangent_evaluations,
+            "total_line_search_cuts": timers.line_search_cuts,
         })
         if checkpoint is not None:
             checkpoint.unlink(missing_ok=True)
@@ -302,13 +377,17 @@ class TriaxialProblem:
             "axial_strain": (("step",), np.asarray(rec["axial_strain"]), "1",
                              "prescribed axial strain, compression positive (top uz = -axial_strain * H)"),
             "top_force": (("step",), np.asarray(rec["top_force"]), "N",
-                          "axial platen reaction, tension positive (= integral of sigma_zz over the top face)"),
+                          "axial platen reaction of the full specimen, tension positive (= integral of sigma_zz "
+                          "over the top face)" + ("; quarter symmetry: 4 x the modelled quarter's reaction"
+                                                  if self.symmetry == "quarter" else "")),
             "volumetric_strain": (("step",), np.asarray(rec["volumetric_strain"]), "1",
                                   "volume change / volume of the specimen, tension positive"),
             "newton_iterations": (("step",), np.asarray(rec["newton_iterations"], dtype=np.int64), "1",
                                   "Newton corrections of the converged (sub-)steps"),
             "material_evaluations": (("step",), np.asarray(rec["material_evaluations"], dtype=np.int64), "1",
                                      "material-set evaluations, failed attempts included"),
+            "tangent_evaluations": (("step",), np.asarray(rec["tangent_evaluations"], dtype=np.int64), "1",
+                                    "material-set evaluations that asked for the tangent (fewer with modified Newton)"),
             "residual_norm": (("step", "iteration"), residuals, "N",
                               "norm of the out-of-balance force on free dofs per iteration of the last "
                               "(sub-)step (iteration 0 = after the predictor); NaN-padded"),
@@ -342,7 +421,14 @@ class TriaxialProblem:
                 "specimen_elements": list(self.elements),
                 "confining_pressure_Pa": self.confining_pressure,
                 "platen": self.platen,
+                "symmetry": self.symmetry,
+                "modelled_fraction": 1.0 / self.force_factor,
+                "mesh_elements": list(self.mesh_elements),
+                "uniform_field": int(self.uniform_field),
                 "newton_tolerance": self.newton.tolerance,
+                "newton_line_search": int(self.newton.line_search),
+                "newton_tangent_every": self.newton.tangent_every,
+                "newton_tangent_repair": self.newton.tangent_repair,
                 "gauss_points_per_element": POINTS_PER_ELEMENT,
             },
         )

@@ -1,0 +1,246 @@
+"""Wrappers around any material-point set (analytic, DEM, surrogate): they change what the
+solver sees, never the solver.
+
+* :class:`TangentRepair` — tangents that are not positive definite (a learned ND tangent, a
+  noisy DEM contact tangent) replaced by the nearest symmetric matrix whose eigenvalues are
+  at least a floor; counts per step how many raw tangents were not positive definite.
+* :class:`NoisyTangent` — a DEM-like random perturbation of the tangent (stress untouched),
+  seeded and a pure function of the trial strain, for robustness tests of the solver.
+* :class:`UniformField` — a homogeneous scene (smooth platens, uniform material): one
+  material point is evaluated and its answer broadcast to every Gauss point; a trial field
+  that is not uniform stops the run with :class:`NonUniformFieldError`.
+
+and the diagnostics :func:`non_spd_mask`, :func:`non_spd_share`, :func:`non_spd_per_step`.
+
+Positive definiteness of a Voigt tangent D (acting on the engineering strain) is judged on
+its Mandel form M = S D S, S = diag(1, 1, 1, √2, √2, √2): a congruence, so M and D are
+definite together, and M's eigenvalues are those of the fourth-order tangent (the
+engineering/tensorial factors of the Voigt form would otherwise weight shear and normal
+directions differently). A non-symmetric D is positive definite when its symmetric part is.
+"""
+
+from __future__ import annotations
+
+import zlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..tensors import tangent_from_upper
+from .base import MaterialPointSet
+
+_S = np.array([1.0, 1.0, 1.0, np.sqrt(2.0), np.sqrt(2.0), np.sqrt(2.0)])
+REPAIRS = ("none", "eig_floor")
+
+
+class NonUniformFieldError(RuntimeError):
+    """A uniform-field material set received different trial strains at different Gauss points."""
+
+
+# -- tangent diagnostics and repair ---------------------------------------------------------
+def _mandel(D: np.ndarray) -> np.ndarray:
+    sym = 0.5 * (D + np.swapaxes(D, -1, -2))
+    return sym * _S[:, None] * _S[None, :]
+
+
+def tangent_eigenvalues(D: np.ndarray) -> np.ndarray:
+    """[..., 6, 6] Voigt tangents -> [..., 6] ascending eigenvalues of their symmetric Mandel form (Pa)."""
+    return np.linalg.eigvalsh(_mandel(np.asarray(D, dtype=float)))
+
+
+def non_spd_mask(D: np.ndarray) -> np.ndarray:
+    """[..., 6, 6] -> [...] True where the tangent is not positive definite (smallest eigenvalue <= 0)."""
+    return tangent_eigenvalues(D)[..., 0] <= 0.0
+
+
+def eig_floor(D: np.ndarray, floor: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+    """Repair [n, 6, 6] tangents whose smallest eigenvalue is below `floor` × their largest |eigenvalue|.
+
+    Those points get the symmetric part with the eigenvalues raised to the floor (the nearest
+    such matrix in the tensor Frobenius norm); the others are returned unchanged (a
+    non-symmetric but positive-definite tangent keeps its skew part). Returns (tangent, repaired mask)."""
+    D = np.asarray(D, dtype=float)
+    lam, vec = np.linalg.eigh(_mandel(D))
+    scale = np.abs(lam).max(axis=-1)
+    threshold = floor * scale
+    repaired = lam[:, 0] < threshold
+    out = D.copy()
+    if repaired.any():
+        idx = np.flatnonzero(repaired)
+        lam_r = np.maximum(lam[idx], threshold[idx, None])
+        lam_r = np.where(scale[idx, None] > 0, lam_r, 0.0)  # an all-zero tangent stays zero (nothing to scale by)
+        M = np.einsum("nij,nj,nkj->nik", vec[idx], lam_r, vec[idx])
+        out[idx] = M / _S[:, None] / _S[None, :]
+    return out, repaired
+
+
+def _tangent_array(source) -> np.ndarray:
+    """A run file path, a Dataset with a `tangent` variable, or an array [..., 21] / [..., 6, 6] -> [..., 6, 6]."""
+    if isinstance(source, (str, Path)):
+        from ..data import read_run
+
+        source = read_run(source, required=("tangent",))
+    if hasattr(source, "data_vars"):
+        if "tangent" not in source:
+            raise KeyError("the run has no 'tangent' variable")
+        source = source["tangent"].values
+    arr = np.asarray(source, dtype=float)
+    if arr.shape[-1] == 21:
+        return tangent_from_upper(arr)
+    if arr.shape[-2:] == (6, 6):
+        return arr
+    raise ValueError(f"expected tangents [..., 21] or [..., 6, 6], got shape {arr.shape}")
+
+
+def non_spd_per_step(source) -> np.ndarray:
+    """Number of Gauss points per step whose tangent is not positive definite.
+
+    `source`: a run file (path), a run Dataset (tangent(step, gp, tcomp)) or an array
+    [steps, gp, 21] / [steps, gp, 6, 6]."""
+    D = _tangent_array(source)
+    if D.ndim != 4:
+        raise ValueError(f"expected tangents per step and Gauss point, got shape {D.shape[:-2]}")
+    return non_spd_mask(D).sum(axis=1)
+
+
+def non_spd_share(source, skip_initial: bool = False) -> float:
+    """Share (0–1) of the tangents of a run that are not positive definite (all steps and Gauss points).
+
+    skip_initial leaves out step 0 (the consolidated state, where every reference tangent is elastic)."""
+    D = _tangent_array(source)
+    if skip_initial and D.ndim == 4:
+        D = D[1:]
+    mask = non_spd_mask(D)
+    return float(mask.mean()) if mask.size else 0.0
+
+
+# -- wrappers -----------------------------------------------------------------------------
+class MaterialWrapper(MaterialPointSet):
+    """Delegates everything to `inner`; subclasses change evaluate/step_info."""
+
+    def __init__(self, inner: MaterialPointSet, n_points: int | None = None):
+        super().__init__(inner.n_points if n_points is None else n_points)
+        self.inner = inner
+        self.method = getattr(inner, "method", type(inner).__name__)
+
+    def evaluate(self, strain, need_tangent: bool = True):
+        return self.inner.evaluate(strain, need_tangent=need_tangent)
+
+    def commit(self) -> None:
+        self.inner.commit()
+
+    def get_state(self) -> dict[str, Any]:
+        return self.inner.get_state()
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        self.inner.set_state(state)
+
+    def step_info(self) -> dict[str, float]:
+        return self.inner.step_info()
+
+    def close(self) -> None:
+        self.inner.close()
+
+    def __getattr__(self, name):
+        # attributes of the wrapped set (e.g. a surrogate's `history`) stay reachable
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+
+class TangentRepair(MaterialWrapper):
+    """Eigenvalue-floor repair of the tangents of any material set (config ``newton.tangent_repair``).
+
+    step_info adds, for the committed state, ``tangent_non_spd_points`` (raw tangents not
+    positive definite) and ``tangent_repaired_points`` (tangents changed: those plus the
+    positive-definite ones below the floor)."""
+
+    def __init__(self, inner: MaterialPointSet, method: str = "eig_floor", floor: float = 1e-3):
+        super().__init__(inner)
+        if method not in REPAIRS or method == "none":
+            raise ValueError(f"config key 'newton.tangent_repair': unknown repair {method!r}; known: {REPAIRS[1:]}")
+        if not 0 < floor < 1:
+            raise ValueError(f"config key 'newton.tangent_floor' must be in (0, 1), got {floor}")
+        self.floor = float(floor)
+        self._trial_counts = self._committed_counts = {"tangent_non_spd_points": 0.0, "tangent_repaired_points": 0.0}
+
+    def evaluate(self, strain, need_tangent: bool = True):
+        stress, tangent = self.inner.evaluate(strain, need_tangent=need_tangent)
+        if tangent is not None:
+            non_spd = non_spd_mask(tangent)
+            tangent, repaired = eig_floor(tangent, self.floor)
+            self._trial_counts = {"tangent_non_spd_points": float(non_spd.sum()),
+                                  "tangent_repaired_points": float(repaired.sum())}
+        return stress, tangent
+
+    def commit(self) -> None:
+        self.inner.commit()
+        self._committed_counts = dict(self._trial_counts)
+
+    def step_info(self) -> dict[str, float]:
+        return {**self.inner.step_info(), **self._committed_counts}
+
+
+class NoisyTangent(MaterialWrapper):
+    """The inner set's tangent with a random relative perturbation of every entry (stress exact).
+
+        D_noisy = D ∘ (1 + amplitude · E),   E symmetric, entries uniform in [−1, 1]
+
+    like a DEM contact tangent that scatters from one RVE relaxation to the next. E is drawn
+    from a generator seeded by (seed, the bytes of the trial strain), so evaluate stays a
+    pure function of the trial strain, as the interface requires."""
+
+    def __init__(self, inner: MaterialPointSet, amplitude: float, seed: int = 0):
+        super().__init__(inner)
+        if not 0 <= amplitude < 1:
+            raise ValueError(f"noise amplitude must be in [0, 1), got {amplitude}")
+        self.amplitude = float(amplitude)
+        self.seed = int(seed)
+
+    def evaluate(self, strain, need_tangent: bool = True):
+        strain = self._check_strain(strain)
+        stress, tangent = self.inner.evaluate(strain, need_tangent=need_tangent)
+        if tangent is not None and self.amplitude > 0:
+            rng = np.random.default_rng([self.seed, zlib.crc32(np.ascontiguousarray(strain).tobytes())])
+            E = rng.uniform(-1.0, 1.0, size=tangent.shape)
+            E = np.triu(E) + np.swapaxes(np.triu(E, 1), -1, -2)
+            tangent = tangent * (1.0 + self.amplitude * E)
+        return stress, tangent
+
+
+class UniformField(MaterialWrapper):
+    """One material point standing for all `n_points` Gauss points of a homogeneous scene.
+
+    Every evaluation checks that the trial strains agree (max-norm spread ≤ rtol × the
+    strain's magnitude, floored at 10⁻⁶); the single point is evaluated at their mean and its
+    stress and tangent are broadcast. A non-uniform trial field raises
+    :class:`NonUniformFieldError` naming the Gauss points — it is not a material failure, so
+    the solver does not cut back but stops: the scene is not homogeneous (rough platens, a
+    heterogeneous material) and needs every point."""
+
+    def __init__(self, single: MaterialPointSet, n_points: int, rtol: float = 1e-8):
+        if single.n_points != 1:
+            raise ValueError(f"UniformField wraps a set of one material point, got {single.n_points}")
+        super().__init__(single, n_points)
+        self.rtol = float(rtol)
+
+    def evaluate(self, strain, need_tangent: bool = True):
+        strain = self._check_strain(strain)
+        mean = strain.mean(axis=0)
+        spread = np.abs(strain - mean).max(axis=1)
+        limit = self.rtol * max(float(np.abs(mean).max()), 1e-6)
+        bad = np.flatnonzero(spread > limit)
+        if bad.size:
+            worst = bad[np.argsort(spread[bad])[::-1][:10]]
+            raise NonUniformFieldError(
+                f"uniform-field material set ({self.method}, one point for {self.n_points}): the trial strains "
+                f"differ between Gauss points (largest deviation {spread.max():.3e} from the mean at Gauss points "
+                f"{worst.tolist()}, allowed {limit:.1e}); the scene is not homogeneous, so it needs every "
+                "material point: set specimen.uniform_field to false"
+            )
+        stress, tangent = self.inner.evaluate(mean[None, :], need_tangent=need_tangent)
+        stress = np.broadcast_to(stress, (self.n_points, 6)).copy()
+        if tangent is not None:
+            tangent = np.broadcast_to(tangent, (self.n_points,) + tangent.shape[1:]).copy()
+        return stress, tangent
