@@ -212,9 +212,9 @@ class NoisyTangent(MaterialWrapper):
 class UniformField(MaterialWrapper):
     """One material point standing for all `n_points` Gauss points of a homogeneous scene.
 
-    Every evaluation checks that the trial strains agree (max-norm spread ≤ rtol × the
-    strain's magnitude, floored at 10⁻⁶); the single point is evaluated at their mean and its
-    stress and tangent are broadcast. A non-uniform trial field raises
+    Every evaluation checks that the trial strains agree (max-norm deviation from their median
+    ≤ rtol × the strain's magnitude, floored at 10⁻⁶); the single point is evaluated at their
+    mean and its stress and tangent are broadcast. A non-uniform trial field raises
     :class:`NonUniformFieldError` naming the Gauss points — it is not a material failure, so
     the solver does not cut back but stops: the scene is not homogeneous (rough platens, a
     heterogeneous material) and needs every point."""
@@ -227,19 +227,20 @@ class UniformField(MaterialWrapper):
 
     def evaluate(self, strain, need_tangent: bool = True):
         strain = self._check_strain(strain)
-        mean = strain.mean(axis=0)
-        spread = np.abs(strain - mean).max(axis=1)
-        limit = self.rtol * max(float(np.abs(mean).max()), 1e-6)
+        # the median names the points that stray from the others (a mean would flag every point)
+        typical = np.median(strain, axis=0)
+        spread = np.abs(strain - typical).max(axis=1)
+        limit = self.rtol * max(float(np.abs(typical).max()), 1e-6)
         bad = np.flatnonzero(spread > limit)
         if bad.size:
             worst = bad[np.argsort(spread[bad])[::-1][:10]]
             raise NonUniformFieldError(
                 f"uniform-field material set ({self.method}, one point for {self.n_points}): the trial strains "
-                f"differ between Gauss points (largest deviation {spread.max():.3e} from the mean at Gauss points "
+                f"differ between Gauss points (largest deviation {spread.max():.3e} from the median at Gauss points "
                 f"{worst.tolist()}, allowed {limit:.1e}); the scene is not homogeneous, so it needs every "
                 "material point: set specimen.uniform_field to false"
             )
-        stress, tangent = self.inner.evaluate(mean[None, :], need_tangent=need_tangent)
+        stress, tangent = self.inner.evaluate(strain.mean(axis=0)[None, :], need_tangent=need_tangent)
         stress = np.broadcast_to(stress, (self.n_points, 6)).copy()
         if tangent is not None:
             tangent = np.broadcast_to(tangent, (self.n_points,) + tangent.shape[1:]).copy()
