@@ -79,6 +79,41 @@ def test_line_search_keeps_full_steps_when_they_work():
     np.testing.assert_allclose(b.top_force.values, a.top_force.values, rtol=1e-12)
 
 
+# -- Anderson acceleration ----------------------------------------------------------------
+class ElasticTangent(MaterialWrapper):
+    """The elastic stiffness instead of the consistent tangent, like a DEM contact-stiffness
+    tangent that ignores sliding: stiffer than the response, so Newton converges linearly."""
+
+    def evaluate(self, strain, need_tangent=True):
+        stress, tangent = self.inner.evaluate(strain, need_tangent)
+        if tangent is None:
+            return stress, None
+        return stress, np.broadcast_to(self.inner.elastic_tangent, tangent.shape).copy()
+
+
+def test_anderson_acceleration_cuts_the_iterations_of_a_too_stiff_tangent_by_more_than_half():
+    """Pass criterion: Path2, 2×2×4, elastic instead of consistent tangent: Anderson
+    acceleration reaches the consistent-tangent top force (1e-6) with less than half the Newton
+    corrections of plain Newton (measured 1448 -> 450), and rescues the 0.4× too soft tangent
+    that plain Newton cannot converge with."""
+    exact_problem = TriaxialProblem(elements=(2, 2, 4))
+    exact = exact_problem.run(elastoplastic(exact_problem), PATH2, progress=False)
+    plain = TriaxialProblem(elements=(2, 2, 4), newton=NewtonSettings(max_iterations=100))
+    mixed = TriaxialProblem(elements=(2, 2, 4), newton=NewtonSettings(max_iterations=100, acceleration="anderson"))
+    a = plain.run(ElasticTangent(elastoplastic(plain)), PATH2, progress=False)
+    b = mixed.run(ElasticTangent(elastoplastic(mixed)), PATH2, progress=False)
+    it_a, it_b = int(a.newton_iterations.sum()), int(b.newton_iterations.sum())
+    print(f"elastic tangent: {it_a} corrections plain, {it_b} with Anderson acceleration")
+    # a linearly converging iteration stops with an error ~ residual / (1 − rate): 1e-6, not 1e-8
+    np.testing.assert_allclose(b.top_force.values, exact.top_force.values, rtol=1e-6)
+    np.testing.assert_allclose(a.top_force.values, exact.top_force.values, rtol=1e-6)
+    assert it_b < 0.5 * it_a
+    assert b.material_evaluations.sum() < a.material_evaluations.sum()
+    soft = mixed.run(ScaledTangent(elastoplastic(mixed), 0.4), SHORT, progress=False)
+    short = exact_problem.run(elastoplastic(exact_problem), SHORT, progress=False)
+    np.testing.assert_allclose(soft.top_force.values, short.top_force.values, rtol=1e-7)
+
+
 # -- modified Newton ----------------------------------------------------------------------
 class CountsTangentRequests(MaterialWrapper):
     """Counts the evaluations that ask for a tangent, and refuses to compute one unasked."""
@@ -121,6 +156,8 @@ def test_newton_settings_reject_bad_values_naming_the_key():
         NewtonSettings(tangent_every=0)
     with pytest.raises(ValueError, match="'newton.tangent_repair'"):
         NewtonSettings(tangent_repair="cholesky")
+    with pytest.raises(ValueError, match="'newton.acceleration'"):
+        NewtonSettings(acceleration="broyden")
     config = validate_config({"newton": {"line_search": True, "tangent_every": 2, "tangent_repair": "eig_floor"}})
     problem = TriaxialProblem.from_config(config)
     assert problem.newton.line_search and problem.newton.tangent_every == 2
