@@ -1,8 +1,12 @@
 """Benchmark of the FEM core at the paper mesh (5×5×10 hexahedra, 2000 Gauss points) with
 the elastoplastic model: cost of one Newton iteration split into material / assembly /
 solve, the whole Path2 run, and why assembly does not use scikit-fem's BilinearForm.
+With --fem-ml, the same split for FEM–ML: NNσ + ND (tangent nn) and NNσ with its autodiff
+tangent at every Gauss point (paper architecture 4×20; the cost of a forward pass does not
+depend on the weights, so the networks are initialised, not trained), the run-time options
+(modified Newton, quarter symmetry) and what they save.
 
-    .venv/bin/python bench/bench_fem.py [--elements 5 5 10] [--repeat 20]
+    .venv/bin/python bench/bench_fem.py [--elements 5 5 10] [--repeat 20] [--fem-ml]
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ import numpy as np
 from skfem import BilinearForm
 from skfem.helpers import sym_grad
 
+from granular_multiscale.fem.newton import NewtonSettings
 from granular_multiscale.fem.triaxial import TriaxialProblem
 from granular_multiscale.materials import Elastoplastic
 from granular_multiscale.paths import LoadPath
@@ -47,6 +52,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--elements", type=int, nargs=3, default=[5, 5, 10])
     parser.add_argument("--repeat", type=int, default=20)
+    parser.add_argument("--fem-ml", action="store_true", help="also time FEM–ML (networks at the Gauss points)")
     args = parser.parse_args()
 
     t0 = time.perf_counter()
@@ -106,6 +112,60 @@ def main() -> None:
           f"{1e3 * wall / evaluations:.1f} ms per evaluation overall")
     q = -ds.top_force.values / (0.5 * 0.5) - problem.confining_pressure
     print(f"  deviator at 0.9 % / 4.5 %: {q[9] / 1e3:.0f} / {q[-1] / 1e3:.0f} kPa")
+
+    # the scene options on the same run
+    for label, kwargs in (("quarter symmetry", dict(symmetry="quarter")),
+                          ("modified Newton (tangent every 3)", dict(newton=NewtonSettings(tangent_every=3)))):
+        other = TriaxialProblem(size=(0.5, 0.5, 1.0), elements=tuple(args.elements), platen="rough", **kwargs)
+        t0 = time.perf_counter()
+        ds_o = other.run(Elastoplastic(other.n_gauss_points, initial_stress=other.initial_stress), PATH2,
+                         progress=False)
+        wall_o = time.perf_counter() - t0
+        diff = np.abs(ds_o.top_force.values - ds.top_force.values).max() / np.abs(ds.top_force.values).max()
+        print(f"  {label:34s} {wall_o:6.2f} s ({wall / wall_o:.1f}x faster), {other.n_gauss_points} Gauss points, "
+              f"{ds_o.attrs['total_tangent_evaluations']} tangent evaluations "
+              f"(full: {a['total_tangent_evaluations']}), top force within {diff:.1e}")
+
+    if args.fem_ml:
+        bench_fem_ml(problem, u, strain, args.repeat)
+
+
+def bench_fem_ml(problem, u, strain, repeat: int) -> None:
+    """Seconds per FEM–ML Newton iteration at the same trial state: network / assembly / solve."""
+    import torch
+
+    from granular_multiscale.config import validate_config
+    from granular_multiscale.surrogate.dataset import build_dataset, scaling
+    from granular_multiscale.surrogate.material import SurrogateMaterial
+    from granular_multiscale.surrogate.models import SurrogateModel
+
+    torch.set_num_threads(1)
+    settings = validate_config({})["surrogate"]
+    # scaling from a small elastoplastic reference (any realistic range will do for timing)
+    small = TriaxialProblem(size=(0.5, 0.5, 1.0), elements=(2, 2, 4))
+    run = small.run(Elastoplastic(small.n_gauss_points, initial_stress=small.initial_stress), PATH2, progress=False)
+    train_ds, _ = build_dataset(run, 0.75, seed=0)
+    torch.manual_seed(0)
+    nets = {kind: SurrogateModel.create(kind, True, scaling(train_ds, kind, True), settings) for kind in ("sigma", "tangent")}
+    n_gp = problem.n_gauss_points
+    print(f"FEM–ML, one Newton iteration at {n_gp} Gauss points (median of {repeat}; torch {torch.__version__}, "
+          f"1 thread, float64, {settings['hidden_layers']}x{settings['hidden_units']} {settings['activation']}):")
+    t_assembly_parts = []
+    for tangent in ("nn", "autodiff"):
+        material = SurrogateMaterial(n_gp, nets["sigma"], nets["tangent"], tangent)
+        stress, D = material.evaluate(strain)
+        K_data = problem.ops.stiffness_data(D)
+        residual = problem.ops.internal_force(stress) - problem.f_ext
+        t_net = best_ms(lambda: material.evaluate(strain, need_tangent=True), repeat)
+        t_net_stress = best_ms(lambda: material.evaluate(strain, need_tangent=False), repeat)
+        t_assembly = (best_ms(lambda: problem.ops.strain(u), repeat) + best_ms(lambda: problem.ops.internal_force(stress), repeat)
+                      + best_ms(lambda: problem.ops.stiffness_data(D), repeat))
+        t_solve = best_ms(lambda: problem.system.solve(K_data, -residual), repeat)
+        total = t_net + t_assembly + t_solve
+        t_assembly_parts.append(t_assembly)
+        print(f"  tangent {tangent:8s} network {t_net:7.2f} ms (stress only {t_net_stress:.2f})  assembly {t_assembly:6.2f} ms"
+              f"  solve {t_solve:6.2f} ms  total {total:7.2f} ms = {1e-3 * total:.4f} s "
+              f"(network {t_net / total:.0%}, assembly {t_assembly / total:.0%}, solve {t_solve / total:.0%})")
 
 
 if __name__ == "__main__":
