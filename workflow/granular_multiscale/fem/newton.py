@@ -109,7 +109,13 @@ class StepFailed(RuntimeError):
 
 
 class ConvergenceError(RuntimeError):
-    """A load step did not converge after all cutbacks; the message names the step."""
+    """A load step did not converge after all cutbacks; the message names the step.
+
+    Raised by ``TriaxialProblem.run`` with ``partial``: the run Dataset of the steps that did
+    converge (attrs ``stopped_at_step`` and ``stop_reason``), for diagnosis — never written as
+    the run's output."""
+
+    partial = None
 
 
 @dataclass

@@ -297,7 +297,14 @@ class TriaxialProblem:
             t0 = time.perf_counter()
             evaluations_before, tangents_before = timers.evaluations, timers.tangent_evaluations
             a_from = axial[step - 1] if step > 0 else 0.0
-            result, stats = self._solve_step(material, step, a_from, axial[step], u, previous, timers)
+            try:
+                result, stats = self._solve_step(material, step, a_from, axial[step], u, previous, timers)
+            except ConvergenceError as error:
+                if records["axial_strain"]:
+                    error.partial = self._dataset(records, load_path, method)
+                    error.partial.attrs.update({"stopped_at_step": step, "stop_reason": str(error)})
+                logger.error("%s", error)
+                raise
             u, previous = result.u, result
             info = material.step_info() or {}
             wall = time.perf_counter() - t0
