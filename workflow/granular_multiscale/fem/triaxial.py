@@ -247,6 +247,11 @@ class TriaxialProblem:
                 result = newton_solve(self.ops, self.system, material, self.f_ext, u_start,
                                       self.prescribed_values(hi), self.newton, prev, timers)
             except StepFailed as error:
+                if hi == lo:  # no increment to halve (step 0, the consolidated state, or a hold)
+                    raise ConvergenceError(
+                        f"load step {step} (axial strain {a_from:.6g} -> {a_to:.6g}) did not converge, and a step "
+                        f"without an axial strain increment cannot be cut back: {error}"
+                    ) from error
                 if depth >= self.newton.max_cutbacks:
                     raise ConvergenceError(
                         f"load step {step} (axial strain {a_from:.6g} -> {a_to:.6g}) did not converge after "
