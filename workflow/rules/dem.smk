@@ -11,6 +11,11 @@ rule rve:
     output:
         packings=PACKINGS,
         summary=f"{OUT}/rve/summary.json",
+    params:
+        # rerun when what defines a packing changes
+        dem={k: v for k, v in config["dem"].items() if k not in ("executor", "n_workers", "dask_scheduler", "newton")},
+        pressure=config["specimen"]["confining_pressure"],
+        seed=config["seed"],
     log:
         f"{OUT}/logs/rve.log",
     benchmark:
@@ -31,6 +36,11 @@ rule fem_dem:
         f"{OUT}/benchmarks/fem_dem/{{path}}.tsv"
     params:
         checkpoint=f"{OUT}/checkpoints/fem_dem/{{path}}.ckpt",
+        # rerun when the run's definition changes (not where it runs)
+        dem={k: v for k, v in config["dem"].items() if k not in ("executor", "n_workers", "dask_scheduler")},
+        specimen=config["specimen"],
+        newton=config["newton"],
+        path=lambda wildcards: config["load_paths"][wildcards.path],
     threads: config["dem"]["n_workers"]
     script:
         "../../scripts/run_fem_dem.py"

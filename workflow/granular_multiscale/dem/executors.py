@@ -104,7 +104,7 @@ class LocalExecutor:
                 i = pending.pop(conn)
                 try:
                     replies[i] = _unwrap(conn.recv(), self.labels[i])
-                except EOFError:
+                except (EOFError, OSError):
                     errors.append(f"{self.labels[i]} died (exit code {self.hosts[i][0].poll()})")
                 except HostError as e:
                     errors.append(str(e))
@@ -128,7 +128,7 @@ class HostActor:
         self.conn.send(msg)
         try:
             return self.conn.recv()
-        except EOFError:
+        except (EOFError, OSError):
             return ("error", f"RVE host died on {socket.gethostname()} (exit code {self.proc.poll()})")
 
     def close(self):

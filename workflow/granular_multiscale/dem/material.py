@@ -28,16 +28,21 @@ Cost
 Rollback is a ``fork`` of the host (see ``worker.py``), so a trial costs its DEM steps plus a
 few ms per host. ``step_info()`` reports per load step: ``dem_time`` (YADE stepping, mean over
 hosts), ``imbalance_time`` (slowest host minus mean), ``overhead_time`` (everything else inside
-the material calls: fork, transfer, Python, snapshots), ``particle_steps``, ``trials``.
+the material calls: fork, transfer, Python, snapshots), ``dem_cpu_time`` (CPU seconds of YADE
+stepping summed over hosts: what the stepping costs on an idle machine), ``particle_steps``,
+``trials``.
 
 Checkpoints
 -----------
 ``get_state()`` is small: the converged strains/stresses, the committed strain increments since
 the last *snapshot*, and the snapshot file names. Every ``snapshot_interval`` committed steps
-the hosts write their scenes to ``snapshot_dir`` (YADE scene strings) and re-load them, so the
-uninterrupted run and a run resumed from that snapshot pass through identical states;
-``set_state()`` loads the snapshot (or the packings) and replays the committed increments.
-YADE runs one thread per host, so the replay is bit-for-bit the original.
+the hosts serialise their scenes and load them back (YADE scene strings; written to
+``snapshot_dir`` when the run keeps checkpoints). A scene loaded from a string continues
+with round-off-level differences from the live one (the collider rebuilds its lists), so this
+re-load happens whether or not files are kept: the numbers of a run depend on
+``snapshot_interval`` but not on whether it is checkpointed or resumed. ``set_state()`` loads
+the newest snapshot (or the packings) and replays the committed increments, re-loading at the
+same steps. YADE runs one thread per host, so the replay is bit-for-bit the original.
 """
 
 from __future__ import annotations
@@ -191,7 +196,7 @@ class DemMaterialPointSet(MaterialPointSet):
     # ------------------------------------------------------------------ accounting
     def _reset_step_counters(self) -> None:
         self._step = {
-            "dem_time": 0.0, "imbalance_time": 0.0, "overhead_time": 0.0, "material_time": 0.0,
+            "dem_time": 0.0, "dem_cpu_time": 0.0, "imbalance_time": 0.0, "overhead_time": 0.0, "material_time": 0.0,
             "snapshot_time": 0.0, "particle_steps": 0.0, "trials": 0.0, "dem_steps_max": 0.0,
         }
 
@@ -203,6 +208,7 @@ class DemMaterialPointSet(MaterialPointSet):
             return
         dem = np.array([r["dem_time"] for r in replies])
         s["dem_time"] += dem.mean()
+        s["dem_cpu_time"] += sum(r["dem_cpu_time"] for r in replies)
         s["imbalance_time"] += dem.max() - dem.mean()
         s["overhead_time"] += wall - dem.max()
         s["particle_steps"] += sum(r["particle_steps"] for r in replies)
@@ -240,7 +246,7 @@ class DemMaterialPointSet(MaterialPointSet):
             self.replay.append(np.zeros((self.n_points, 6)))
         self.commits += 1
         self._account(time.perf_counter() - t0, None)
-        if self.snapshot_dir is not None and self.snapshot_interval > 0 and self.commits % self.snapshot_interval == 0:
+        if self._snapshot_due(self.commits):
             self._snapshot()
         self._last_step_info = dict(self._step)
         for k, v in self._step.items():
@@ -252,20 +258,27 @@ class DemMaterialPointSet(MaterialPointSet):
         self.executor.call_all(self._slot_messages("rollback"))
         self._trial = None
 
-    def _snapshot(self) -> None:
+    def _snapshot_due(self, step: int) -> bool:
+        return self.snapshot_interval > 0 and step % self.snapshot_interval == 0
+
+    def _snapshot(self, write: bool = True) -> None:
+        """Serialise and re-load every scene; with a snapshot_dir (and ``write``) keep the files
+        as the new base of the checkpoint state."""
         t0 = time.perf_counter()
-        self.snapshot_dir.mkdir(parents=True, exist_ok=True)
-        files = [str(self.snapshot_dir / f"step{self.commits:05d}_slot{j}.pkl") for j in range(len(self.slots))]
+        files = [None] * len(self.slots)
+        if write and self.snapshot_dir is not None:
+            self.snapshot_dir.mkdir(parents=True, exist_ok=True)
+            files = [str(self.snapshot_dir / f"commit{self.commits:05d}_slot{j}.pkl") for j in range(len(self.slots))]
         self.executor.call_all([("snapshot", {"path": f}) for f in files])
-        old = self.base
-        self.base = {"step": self.commits, "files": files}
-        self.replay = []
-        # keep the previous set too: the checkpoint on disk may still point to it
-        if old is not None:
-            for f in sorted(self.snapshot_dir.glob("step*_slot*.pkl")):
-                step = int(f.name[4:9])
-                if step < old["step"]:
-                    f.unlink(missing_ok=True)
+        if files[0] is not None:
+            old = self.base
+            self.base = {"step": self.commits, "files": files}
+            self.replay = []
+            # keep the previous set too: the checkpoint on disk may still point to it
+            if old is not None:
+                for f in sorted(self.snapshot_dir.glob("commit*_slot*.pkl")):
+                    if int(f.name[6:11]) < old["step"]:
+                        f.unlink(missing_ok=True)
         wall = time.perf_counter() - t0
         self._step["snapshot_time"] += wall
         self._step["overhead_time"] += wall
@@ -313,21 +326,25 @@ class DemMaterialPointSet(MaterialPointSet):
             msgs = [("load_snapshot", {"gps": idx.tolist(), "files": base["files"], "settings": self.settings}) for idx in self.slots]
             self._adopt(self.executor.call_all(msgs))
         replay = np.asarray(state["replay"]).reshape(-1, self.n_points, 6)
-        for dstrain in replay:
+        self.snapshot_interval = int(state["snapshot_interval"])
+        first = 0 if base is None else base["step"]
+        for k, dstrain in enumerate(replay):
             replies = self.executor.call_all(self._slot_messages("replay", {"dstrain": dstrain}))
             for idx, r in zip(self.slots, replies):
                 self.conv_stress[idx], self.conv_tangent[idx] = r["stress"], r["tangent"]
+            if self._snapshot_due(first + k + 1):
+                self._snapshot(write=False)  # the original run re-loaded here too
+        self._reset_step_counters()
         self.commits = int(state["commits"])
         self.base = None if base is None else {"step": base["step"], "files": list(base["files"])}
         self.replay = [d for d in replay]
-        self.snapshot_interval = int(state["snapshot_interval"])
         self.conv_strain = np.asarray(state["converged_strain"], dtype=float).copy()
         diff = np.abs(self.conv_stress - np.asarray(state["converged_stress"])).max()
         if diff != 0.0:
             self.log.warning("DEM resume: replayed stresses differ from the checkpoint by up to %.3g Pa", diff)
         self.log.info(
-            "DEM material resumed at step %d (%s + %d replayed steps) in %.1f s",
-            self.commits, "packings" if base is None else f"snapshot of step {base['step']}", len(replay),
+            "DEM material resumed after %d commits (%s + %d replayed commits) in %.1f s",
+            self.commits, "packings" if base is None else f"snapshot after commit {base['step']}", len(replay),
             time.perf_counter() - t0,
         )
 

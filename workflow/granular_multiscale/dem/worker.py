@@ -93,7 +93,9 @@ class Host:
         from .rve import _matrix3_to_numpy, _matrix6_to_numpy, stress_voigt
 
         s, D = self.utils.getStressAndTangent(symmetry=True)
-        return stress_voigt(_matrix3_to_numpy(s)), _matrix6_to_numpy(D)
+        # YADE fills only the upper triangle (j >= i) of its symmetric 6×6 tangent
+        upper = np.triu(_matrix6_to_numpy(D))
+        return stress_voigt(_matrix3_to_numpy(s)), upper + np.triu(upper, 1).T
 
     def load(self, gps: list[int], scenes: list[bytes], settings: dict) -> dict:
         """Load one scene per Gauss point (YADE scene strings) and compute their response."""
@@ -156,7 +158,7 @@ class Host:
         dstrain = np.asarray(dstrain, dtype=float).reshape(len(self.gps), 6)
         stress, tangent = self.stress.copy(), self.tangent.copy()
         steps = np.zeros(len(self.gps), dtype=np.int64)
-        dem_time = 0.0
+        dem_time = cpu_time = 0.0
         particle_steps = 0
         for k in range(len(self.gps)):
             self._scene(k)
@@ -165,7 +167,7 @@ class Host:
             if n == 0:
                 continue
             O.cell.velGrad = voigt_to_matrix3(dstrain[k] / (n * O.dt), self.Matrix3)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             step = O.step
             for _ in range(n):
                 step()
@@ -174,28 +176,32 @@ class Host:
             O.cell.velGrad = self.Matrix3.Zero
             step()
             dem_time += time.perf_counter() - t0
+            cpu_time += time.process_time() - c0
             particle_steps += (n + 1) * self.n_spheres[k]
             stress[k], tangent[k] = self._respond(k)
             if not (np.isfinite(stress[k]).all() and np.isfinite(tangent[k]).all()):
                 raise FloatingPointError(f"non-finite stress or tangent in the RVE of Gauss point {self.gps[k]}")
-        return {"stress": stress, "tangent": tangent, "steps": steps, "dem_time": dem_time, "particle_steps": particle_steps}
+        return {"stress": stress, "tangent": tangent, "steps": steps, "dem_time": dem_time, "dem_cpu_time": cpu_time,
+                "particle_steps": particle_steps}
 
     def accept(self, result: dict) -> None:
         self.stress, self.tangent = result["stress"], result["tangent"]
 
     # ---- snapshots (checkpoints) ------------------------------------------------------
-    def snapshot(self, path: str) -> dict:
-        """Write every scene to ``path`` (pickled {gp: scene string}) and re-load them, so that a
-        run resumed from this file and this run continue from bit-identical states."""
+    def snapshot(self, path: str | None) -> dict:
+        """Serialise every scene, write them to ``path`` (pickled {gp: scene string}; None: no
+        file) and re-load them, so that a run resumed from this file and this run continue
+        from bit-identical states."""
         t0 = time.perf_counter()
         blobs = {}
         for k, gp in enumerate(self.gps):
             self._scene(k)
             blobs[gp] = self.O.sceneToString()
-        tmp = f"{path}.tmp{os.getpid()}"
-        with open(tmp, "wb") as f:
-            pickle.dump({"gps": self.gps, "scenes": blobs}, f, protocol=pickle.HIGHEST_PROTOCOL)
-        os.replace(tmp, path)
+        if path is not None:
+            tmp = f"{path}.tmp{os.getpid()}"
+            with open(tmp, "wb") as f:
+                pickle.dump({"gps": self.gps, "scenes": blobs}, f, protocol=pickle.HIGHEST_PROTOCOL)
+            os.replace(tmp, path)
         for k, gp in enumerate(self.gps):
             self._scene(k)
             self.O.stringToScene(blobs[gp])
