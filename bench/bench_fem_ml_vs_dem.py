@@ -1,0 +1,194 @@
+"""FEM–ML against FEM–DEM on the same mesh and load path: seconds per load step and the ratio,
+printed side by side, with the DEM cost per particle-step and the coupling overhead share.
+
+    .venv/bin/python bench/bench_fem_ml_vs_dem.py                      # tiny scale, first 12 steps of Path2
+    .venv/bin/python bench/bench_fem_ml_vs_dem.py --scale default      # 2×2×4, 128 RVEs of 400 spheres (long)
+    .venv/bin/python bench/bench_fem_ml_vs_dem.py --steps 57 --workers 2 --models results/tiny/models
+
+Both runs use the solver settings of the pipeline: FEM–DEM the ``newton`` section with the
+``dem.newton`` overrides, FEM–ML the ``newton`` section (plus --ml-newton overrides). The
+RVE packing is the pipeline's (``<output_dir>/rve/packing_0.yade.gz``) when it exists,
+otherwise one is consolidated here (YADE) and its time reported separately. The networks are
+the pipeline's (``--models``: nn_sigma.pt, nn_tangent.pt) or, without it, trained here on the
+elastoplastic reference of Path1 on the same mesh (paper architecture; a forward pass costs
+the same whatever the weights, but the Newton iterations depend on them: say which in a report).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from granular_multiscale.config import CONFIG_DIR, load_config, validate_config
+from granular_multiscale.fem.newton import ConvergenceError
+from granular_multiscale.fem.triaxial import TriaxialProblem
+from granular_multiscale.materials import Elastoplastic
+from granular_multiscale.paths import LoadPath, load_paths_from_config
+
+ROOT = Path(__file__).resolve().parents[1]
+SCALES = {"tiny": "tiny.yaml", "default": "config.yaml"}
+
+
+def first_steps(path: LoadPath, n: int) -> LoadPath:
+    """The first n steps of a path, as one-step segments (the same axial strains)."""
+    axial = path.axial_strain()[1 : n + 1]
+    return LoadPath(f"{path.name}_first{n}", tuple((1, float(a)) for a in axial))
+
+
+def per_step(ds) -> dict:
+    steps = slice(1, None)  # step 0 is the consolidated state
+    return {
+        "steps": ds.sizes["step"] - 1,
+        "s_per_step": float(ds.wall_time.values[steps].mean()),
+        "iterations": float(ds.newton_iterations.values[steps].mean()),
+        "evaluations": float(ds.material_evaluations.values[steps].mean()),
+        "cutbacks": int(ds.cutbacks.values.sum()),
+        "total_s": float(ds.wall_time.values.sum()),
+    }
+
+
+def run_fem_dem(config, path, packing, workers, logger):
+    from granular_multiscale.dem.material import DemMaterialPointSet
+    from granular_multiscale.dem.run import dem_newton_config
+
+    cfg = dem_newton_config(config)
+    problem = TriaxialProblem.from_config(cfg)
+    t0 = time.perf_counter()
+    with DemMaterialPointSet.from_config(cfg, problem.n_material_points, [packing], n_workers=workers,
+                                         logger=logger) as material:
+        start = time.perf_counter() - t0
+        ds = problem.run(material, path, method="dem", logger=logger, progress=True)
+        split = material.time_split()
+    return problem, ds, split, start, cfg["newton"]
+
+
+def surrogate_models(config, models_dir, problem, logger):
+    from granular_multiscale.surrogate.dataset import build_dataset
+    from granular_multiscale.surrogate.training import train
+
+    if models_dir:
+        folder = Path(models_dir)
+        return folder / "nn_sigma.pt", folder / "nn_tangent.pt", f"pipeline models in {folder}"
+    paths = load_paths_from_config(config)
+    # at least 2×2 elements across: one element across keeps ε12 at round-off, which the
+    # networks' min–max scaling would turn into noise
+    elements = tuple(max(n, m) for n, m in zip(problem.elements, (2, 2, 4)))
+    source = TriaxialProblem(size=problem.size, elements=elements, platen=problem.platen,
+                             confining_pressure=problem.confining_pressure)
+    reference = source.run(Elastoplastic(source.n_gauss_points, initial_stress=source.initial_stress),
+                           paths[config["training_path"]], progress=False)
+    train_ds, heldout_ds = build_dataset(reference, config["surrogate"]["train_fraction"], config["seed"])
+    settings = dict(config["surrogate"], epochs=150, learning_rate=5e-3, batch_size=256)
+    folder = Path(tempfile.mkdtemp(prefix="bench_models_"))
+    t0 = time.perf_counter()
+    for kind, name in (("sigma", "nn_sigma.pt"), ("tangent", "nn_tangent.pt")):
+        model, _, _ = train(train_ds, heldout_ds, kind, settings, config["seed"], config=config, logger=logger)
+        model.save(folder / name)
+    return (folder / "nn_sigma.pt", folder / "nn_tangent.pt",
+            f"trained here on the elastoplastic {config['training_path']} at {'x'.join(map(str, elements))} "
+            f"({time.perf_counter() - t0:.0f} s, 150 epochs)")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scale", choices=sorted(SCALES), default="tiny")
+    parser.add_argument("--steps", type=int, default=12, help="first N load steps of the validation path (57 = all)")
+    parser.add_argument("--workers", type=int, default=2, help="RVE worker processes of FEM–DEM")
+    parser.add_argument("--packing", help="a consolidated packing (default: the pipeline's, else made here)")
+    parser.add_argument("--models", help="folder with nn_sigma.pt and nn_tangent.pt (default: train here)")
+    parser.add_argument("--ml-newton", nargs="*", default=["acceleration=anderson"],
+                        help="newton overrides for FEM–ML, key=value (default: acceleration=anderson)")
+    parser.add_argument("--verbose", action="store_true")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    logger = logging.getLogger("bench")
+
+    import torch
+
+    config = load_config(CONFIG_DIR / SCALES[args.scale])
+    torch.set_num_threads(int(config["surrogate"]["torch_threads"]))
+    full_path = load_paths_from_config(config)[config["validation_path"]]
+    path = first_steps(full_path, min(args.steps, full_path.n_steps))
+
+    # -- the RVE packing
+    packing = Path(args.packing) if args.packing else ROOT / config["output_dir"] / "rve" / "packing_0.yade.gz"
+    packing_note = f"pipeline packing {packing}"
+    if not packing.exists():
+        from granular_multiscale.dem.rve import RVESpec, prepare_packing
+
+        # cached between bench runs (results/ is not versioned)
+        packing = ROOT / "results" / "bench" / f"packing_{config['dem']['n_spheres']}_seed{config['seed']}.yade.gz"
+        packing_note = f"bench packing {packing.relative_to(ROOT)}"
+        if not packing.exists():
+            packing.parent.mkdir(parents=True, exist_ok=True)
+            t0 = time.perf_counter()
+            prepare_packing(RVESpec.from_config(config, config["seed"]), packing)
+            packing_note += f", consolidated here in {time.perf_counter() - t0:.0f} s"
+
+    # -- FEM–DEM
+    problem, dem_ds, split, dem_start, dem_newton = run_fem_dem(config, path, packing, args.workers, logger)
+    dem = per_step(dem_ds)
+
+    # -- FEM–ML on the same mesh and path: the pipeline's Newton settings, and FEM–DEM's tolerance
+    from granular_multiscale.surrogate.material import SurrogateMaterial
+
+    overrides = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.ml_newton)}
+    ml_config = validate_config({**config, "newton": {**config["newton"], **overrides}})
+    sigma = tangent = models_note = None
+    ml, ml_runs = {}, {}
+    for label, newton in (("FEM–ML", ml_config["newton"]),
+                          ("FEM–ML tol", {**ml_config["newton"], "tolerance": dem_newton["tolerance"]})):
+        cfg = validate_config({**ml_config, "newton": newton})
+        ml_problem = TriaxialProblem.from_config(cfg)
+        if sigma is None:
+            sigma, tangent, models_note = surrogate_models(cfg, args.models, ml_problem, logger)
+        t0 = time.perf_counter()
+        with SurrogateMaterial.from_files(ml_problem.n_gauss_points, sigma, tangent, tangent="nn") as material:
+            start = time.perf_counter() - t0
+            try:
+                ds = ml_problem.run(material, path, logger=logger, progress=args.verbose)
+            except ConvergenceError as error:
+                print(f"{label} stopped: {error}; timing the steps it converged")
+                ds = error.partial
+        ml[label], ml_runs[label] = {**per_step(ds), "start": start}, ds
+    ml_ds = ml_runs["FEM–ML"]
+
+    # -- report
+    n_gp = problem.n_gauss_points
+    print(f"scale {args.scale}: mesh {'x'.join(map(str, problem.mesh_elements))}, {n_gp} Gauss points, "
+          f"RVEs of {config['dem']['n_spheres']} spheres, first {path.n_steps} steps of {full_path.name}")
+    print(f"  {packing_note}; FEM–ML networks: {models_note}")
+    print(f"  Newton: FEM–DEM tolerance {dem_newton['tolerance']:.0e}, {dem_newton['max_iterations']} iterations; "
+          f"FEM–ML tolerance {ml_config['newton']['tolerance']:.0e}, acceleration {ml_config['newton']['acceleration']}")
+    a, b = ml["FEM–ML"], ml["FEM–ML tol"]
+    print(f"  {'':26s}{'FEM–DEM':>12s}{'FEM–ML':>12s}{'ratio':>8s}{'FEM–ML at':>14s}{'ratio':>8s}")
+    print(f"  {'':26s}{'':12s}{'':12s}{'':8s}{'DEM tolerance':>14s}")
+    print(f"  {'seconds per load step':26s}{dem['s_per_step']:12.3f}{a['s_per_step']:12.4f}"
+          f"{dem['s_per_step'] / a['s_per_step']:7.0f}x{b['s_per_step']:14.4f}{dem['s_per_step'] / b['s_per_step']:7.0f}x")
+    print(f"  {'Newton iterations / step':26s}{dem['iterations']:12.2f}{a['iterations']:12.2f}{'':8s}{b['iterations']:14.2f}")
+    print(f"  {'evaluations / step':26s}{dem['evaluations']:12.2f}{a['evaluations']:12.2f}{'':8s}{b['evaluations']:14.2f}")
+    print(f"  {'cutbacks':26s}{dem['cutbacks']:12d}{a['cutbacks']:12d}{'':8s}{b['cutbacks']:14d}")
+    print(f"  {'start-up (s)':26s}{dem_start:12.2f}{a['start']:12.3f}{'':8s}{b['start']:14.3f}")
+    print(f"  {'whole run (s)':26s}{dem['total_s']:12.1f}{a['total_s']:12.2f}"
+          f"{dem['total_s'] / a['total_s']:7.0f}x{b['total_s']:14.2f}{dem['total_s'] / b['total_s']:7.0f}x")
+    particle_steps = split["particle_steps"]
+    if particle_steps:
+        print(f"  DEM: {1e6 * split['dem_cpu_time'] / particle_steps:.2f} µs CPU per particle-step "
+              f"({particle_steps:.3g} particle-steps, {args.workers} workers); of the time inside the DEM material "
+              f"{split['material_time']:.1f} s: stepping {split['dem_time'] / split['material_time']:.0%}, "
+              f"imbalance {split['imbalance_time'] / split['material_time']:.0%}, coupling overhead "
+              f"(fork, transfer, Python) {split['overhead_time'] / split['material_time']:.0%}; "
+              f"the FEM outside the material {1 - split['material_time'] / dem['total_s']:.0%} of the run")
+    top = np.abs(dem_ds.top_force.values - ml_ds.top_force.values).max() / np.abs(dem_ds.top_force.values).max()
+    print(f"  (FEM–ML vs FEM–DEM top force on these steps: max difference {top:.1%} of the peak — only "
+          "meaningful with networks trained on this DEM)")
+
+
+if __name__ == "__main__":
+    main()
