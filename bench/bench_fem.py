@@ -1,10 +1,10 @@
 """Benchmark of the FEM core at the paper mesh (5×5×10 hexahedra, 2000 Gauss points) with
 the elastoplastic model: cost of one Newton iteration split into material / assembly /
 solve, the whole Path2 run, and why assembly does not use scikit-fem's BilinearForm.
-With --fem-ml, the same split for FEM–ML: NNσ + ND (tangent nn) and NNσ with its autodiff
-tangent at every Gauss point (paper architecture 4×20; the cost of a forward pass does not
-depend on the weights, so the networks are initialised, not trained), the run-time options
-(modified Newton, quarter symmetry) and what they save.
+The run-time options (quarter symmetry, modified Newton) on the same run. With --fem-ml, the
+split for FEM–ML: NNσ + ND (tangent nn) and NNσ with its autodiff tangent at every Gauss
+point (paper architecture 4×20, trained briefly on the elastoplastic reference: a forward
+pass costs the same whatever the weights, the solve depends on the tangent).
 
     .venv/bin/python bench/bench_fem.py [--elements 5 5 10] [--repeat 20] [--fem-ml]
 """
@@ -135,18 +135,20 @@ def bench_fem_ml(problem, u, strain, repeat: int) -> None:
     import torch
 
     from granular_multiscale.config import validate_config
-    from granular_multiscale.surrogate.dataset import build_dataset, scaling
     from granular_multiscale.surrogate.material import SurrogateMaterial
     from granular_multiscale.surrogate.models import SurrogateModel
 
     torch.set_num_threads(1)
-    settings = validate_config({})["surrogate"]
-    # scaling from a small elastoplastic reference (any realistic range will do for timing)
+    config = validate_config({"reference_material": "elastoplastic"})
+    settings = config["surrogate"]
+    # networks trained briefly on the elastoplastic reference (bench_fem_ml_vs_dem.surrogate_models):
+    # a forward pass costs the same whatever the weights, but the solve depends on the tangent
+    from bench_fem_ml_vs_dem import surrogate_models
+
     small = TriaxialProblem(size=(0.5, 0.5, 1.0), elements=(2, 2, 4))
-    run = small.run(Elastoplastic(small.n_gauss_points, initial_stress=small.initial_stress), PATH2, progress=False)
-    train_ds, _ = build_dataset(run, 0.75, seed=0)
-    torch.manual_seed(0)
-    nets = {kind: SurrogateModel.create(kind, True, scaling(train_ds, kind, True), settings) for kind in ("sigma", "tangent")}
+    sigma_path, tangent_path, note = surrogate_models(config, None, small, None)
+    nets = {"sigma": SurrogateModel.load(sigma_path), "tangent": SurrogateModel.load(tangent_path)}
+    print(f"FEM–ML networks {note}")
     n_gp = problem.n_gauss_points
     print(f"FEM–ML, one Newton iteration at {n_gp} Gauss points (median of {repeat}; torch {torch.__version__}, "
           f"1 thread, float64, {settings['hidden_layers']}x{settings['hidden_units']} {settings['activation']}):")
