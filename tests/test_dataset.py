@@ -69,7 +69,7 @@ def test_features_and_targets_layout(run):
     train, _ = build_dataset(run, 0.75, seed=3)
     x = features(train)
     n_samples = train.sizes["step"] * train.sizes["gp"]
-    assert x.shape == (n_samples, 9) and features(train, use_history=False).shape == (n_samples, 6)
+    assert x.shape == (n_samples, 9) and features(train, history=False).shape == (n_samples, 6)
     assert targets(train, "sigma").shape == (n_samples, 6) and targets(train, "tangent").shape == (n_samples, 21)
     # sample (step 7, 4th training point) sits at row 7 * n_gp + 3, columns in FEATURES order
     n_gp = train.sizes["gp"]
@@ -94,7 +94,7 @@ def test_scaling_fitted_on_training_points_only(run):
     # held-out points have their own extremes: some fall outside [0, 1] (else the split was not by point)
     x_ho = (features(heldout) - sc["x_min"]) / (sc["x_max"] - sc["x_min"])
     assert x_ho.min() < 0.0 or x_ho.max() > 1.0
-    assert scaling(train, "tangent", use_history=False)["x_min"].shape == (6,)
+    assert scaling(train, "tangent", history=False)["x_min"].shape == (6,)
     assert scaling(train, "tangent")["y_max"].shape == (21,)
 
 

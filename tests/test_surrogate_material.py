@@ -17,7 +17,7 @@ from granular_multiscale.surrogate.dataset import build_dataset, scaling
 from granular_multiscale.surrogate.material import SurrogateMaterial, method_name
 from granular_multiscale.surrogate.models import SurrogateModel
 from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
-from granular_multiscale.surrogate.training import train
+from granular_multiscale.surrogate.training import initial_state, train
 from granular_multiscale.tensors import ENGINEERING_FACTOR, isotropic_elastic_tangent, tangent_from_upper
 
 CONFIG = load_config(overrides={"reference_material": "elastoplastic"})
@@ -34,7 +34,9 @@ def untrained(data, kind, use_history=True, seed=0, activation="tanh"):
     """A randomly initialised network with the dataset's scaling, reloaded in float64 like a real model."""
     torch.manual_seed(seed)
     settings = dict(CONFIG["surrogate"], activation=activation)
-    return SurrogateModel.create(kind, use_history, scaling(data[0], kind, use_history), settings)
+    model = SurrogateModel.create(kind, use_history, scaling(data[0], kind, use_history), settings)
+    model.initial_state = initial_state(data[0], kind, use_history)
+    return model
 
 
 @pytest.fixture(scope="module")
@@ -80,11 +82,34 @@ def test_stress_is_the_network_at_strain_and_trial_history(models):
     stress, D = mat.evaluate(trial)
     phi = history_variables(accumulate(acc_c, strain_c, trial))
     x = np.concatenate([trial, phi], axis=1)
-    np.testing.assert_allclose(stress, sigma.predict(x), rtol=1e-12)
+    np.testing.assert_allclose(stress, sigma.predict(x) + sigma.initial_offset(), rtol=1e-12)
     # nn tangent: ND's 21 outputs in Pa, reassembled into the symmetric matrix
-    np.testing.assert_allclose(D, tangent_from_upper(nd.predict(x)), rtol=1e-12)
+    np.testing.assert_allclose(D, tangent_from_upper(nd.predict(x) + nd.initial_offset()), rtol=1e-12)
+    raw = SurrogateMaterial(7, sigma, nd, tangent="nn", anchor_initial_state=False)
+    raw.set_state({"strain": strain_c, "accumulated": acc_c})
+    np.testing.assert_allclose(raw.evaluate(trial)[0], sigma.predict(x), rtol=1e-12)
     np.testing.assert_array_equal(D, np.swapaxes(D, 1, 2))
     assert mat.method == "fem_ml_nn"
+
+
+def test_anchored_networks_reproduce_the_fresh_state(models, data):
+    """Zero strain and history give the consolidated stress and tangent of the data, exactly."""
+    sigma, nd = models
+    fresh = data[0].isel(step=0)
+    stress, D = SurrogateMaterial(3, sigma, nd, tangent="nn").evaluate(np.zeros((3, 6)))
+    np.testing.assert_allclose(stress, np.tile(fresh.stress.values.mean(axis=0), (3, 1)), rtol=1e-12)
+    np.testing.assert_allclose(stress[0], [-1e5, -1e5, -1e5, 0, 0, 0], atol=1e-6)
+    np.testing.assert_allclose(D[0], tangent_from_upper(fresh.tangent.values.mean(axis=0)), rtol=1e-10, atol=1e-3)
+    raw, _ = SurrogateMaterial(3, sigma, nd, anchor_initial_state=False).evaluate(np.zeros((3, 6)))
+    assert np.abs(raw - stress).max() > 1e3  # an untrained network is far off: the anchor did the work
+    # the offset is a constant: the autodiff tangent is the same with and without it
+    strain_c, acc_c, trial = state_with_history(3, seed=5)
+    tangents = []
+    for anchor in (True, False):
+        m = SurrogateMaterial(3, sigma, tangent="autodiff", anchor_initial_state=anchor)
+        m.set_state({"strain": strain_c, "accumulated": acc_c})
+        tangents.append(m.evaluate(trial)[1])
+    np.testing.assert_allclose(tangents[0], tangents[1], rtol=1e-12)
 
 
 def test_batched_evaluation_has_no_cross_talk(models):

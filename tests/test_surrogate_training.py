@@ -53,6 +53,40 @@ def test_training_is_deterministic_and_seeded(data):
     assert len({model_seed(0, k, h) for k in ("sigma", "tangent") for h in (True, False)}) == 4
 
 
+def test_history_variables_are_selectable(data):
+    settings = dict(FAST, epochs=2, history_variables=["phi2", "phi1"])
+    model, _, _ = train(*data, "sigma", settings, seed=0)
+    assert model.feature_names == STRAIN_FEATURES + ("phi1", "phi2") and model.history == ("phi1", "phi2")
+    x = features(data[1], history=("phi1", "phi2"))
+    np.testing.assert_array_equal(x[:, 6:], features(data[1])[:, 6:8])
+    assert train(*data, "sigma", settings, seed=0, use_history=False)[0].feature_names == STRAIN_FEATURES
+    with pytest.raises(ValueError, match="surrogate.history_variables"):
+        train(*data, "sigma", dict(settings, history_variables=["phi4"]), seed=0)
+
+
+def test_jacobian_loss_teaches_the_tangent(data):
+    """With the Jacobian term, NNσ's autodiff tangent moves towards the reference tangent."""
+    from granular_multiscale.surrogate.material import SurrogateMaterial
+
+    errors = []
+    for weight in (0.0, 1.0):
+        model, losses, _ = train(*data, "sigma", dict(FAST, epochs=40, jacobian_loss_weight=weight), seed=0)
+        assert np.isfinite(losses.train_loss).all()
+        heldout = data[1]
+        step = 30
+        mat = SurrogateMaterial(heldout.sizes["gp"], model, tangent="autodiff")
+        strain = heldout.strain.values
+        from granular_multiscale.history import accumulated_from_sequence
+
+        mat.set_state({"strain": strain[step - 1], "accumulated": accumulated_from_sequence(strain)[step - 1]})
+        _, D = mat.evaluate(strain[step])
+        from granular_multiscale.tensors import tangent_from_upper
+
+        D_ref = tangent_from_upper(heldout.tangent.values[step])
+        errors.append(np.abs(D - D_ref).mean() / np.abs(D_ref).mean())
+    assert errors[1] < 0.5 * errors[0], errors
+
+
 def test_training_learns_and_reports(data):
     model, losses, mae = train(*data, "sigma", dict(FAST, epochs=30), seed=0)
     assert list(losses.columns) == ["epoch", "train_loss", "heldout_loss", "elapsed_s"]
@@ -77,10 +111,12 @@ def test_model_file_is_self_sufficient(data, tmp_path):
     assert back.target_names == TANGENT_TARGETS
     assert back.config["surrogate"]["epochs"] == FAST["epochs"] and back.training["epochs"] == FAST["epochs"]
     np.testing.assert_array_equal(back.training["heldout_gp"], data[1].gp.values)
-    x = features(data[1], use_history=False)
+    x = features(data[1], history=False)
     # float64 reload of float32 weights: same predictions to float32 accuracy, scaling kept in float64
     np.testing.assert_allclose(back.predict(x), model.predict(x), rtol=1e-4, atol=1e-3 * np.abs(model.predict(x)).max())
     np.testing.assert_array_equal(back.network.y_min.numpy(), data[0].tangent_min.values)
+    assert back.initial_state == model.initial_state and len(back.initial_state["features"]) == 6
+    np.testing.assert_allclose(back.initial_state["targets"], data[0].tangent.isel(step=0).mean("gp").values)
     assert back.network.net[0].weight.dtype == torch.float64
 
 
@@ -111,3 +147,20 @@ def test_loss_figure(data, tmp_path):
     _, losses, _ = train(*data, "sigma", FAST, seed=0)
     plot_losses({"NNσ": losses}, tmp_path / "loss.png")
     assert (tmp_path / "loss.png").stat().st_size > 5000
+
+
+def test_roundoff_columns_are_constant_in_the_scaling():
+    """A shear strain that is zero up to roundoff at every training point must not be blown up to O(1)."""
+    from granular_multiscale.surrogate.models import column_groups, scale_of
+
+    x_min = np.array([-0.02, -0.02, -0.05, -1e-3, -1e-3, -3e-21, 0.0, 0.0, 0.0])
+    x_max = np.array([0.01, 0.01, 0.0, 1e-3, 1e-3, 2e-21, 0.06, 0.09, 4e-17])
+    scale = scale_of(x_min, x_max, column_groups(9, 6))
+    np.testing.assert_array_equal(scale, [0.03, 0.03, 0.05, 2e-3, 2e-3, 1.0, 0.06, 0.09, 4e-17])
+    # φ3 is legitimately tiny (a product of six strains): its own group keeps its span
+    assert scale_of([0.0, 0.0], [0.0, 0.0], [0, 0]).tolist() == [1.0, 1.0]
+    model = SurrogateModel.create("sigma", True, {"x_min": x_min, "x_max": x_max, "y_min": np.zeros(6),
+                                                  "y_max": np.array([1e6, 1e6, 1e6, 1e4, 1e4, 1e-10])}, FAST)
+    x = torch.tensor([[0.0, 0.0, -0.01, 0.0, 0.0, 1e-12, 0.01, 0.01, 0.0]])
+    assert float(model.network.scale_x(x)[0, 5].abs()) < 1e-9
+    np.testing.assert_allclose(model.network.y_scale.numpy(), [1e6, 1e6, 1e6, 1e4, 1e4, 1.0], rtol=1e-6)

@@ -1,1 +1,182 @@
-# Rules of this stage are added by its issue; see README.
+# Surrogate stage: dataset -> NNσ/ND training (with and without history variables) -> FEM–ML
+# runs -> accuracy tables against the reference runs.
+#
+#   dataset                {OUT}/dataset/train.h5, heldout.h5 from the training path's reference run
+#   train_<network>        {OUT}/models/nn_<network>.pt, {OUT}/training/<network>.csv (loss per epoch),
+#                          <network>_mae.csv (final MAE per component), <network>_loss.png
+#                          networks: sigma, tangent (9 inputs), sigma_nohist, tangent_nohist (6 inputs)
+#   fem_ml                 {OUT}/fem_ml/{path}.h5          tangent from config surrogate.tangent
+#   fem_ml_nohist          {OUT}/fem_ml_nohist/{path}.h5   the ablation without history variables
+#   fem_ml_tangent         {OUT}/fem_ml_{nn,autodiff}/{path}.h5   Newton iterations of both tangents
+#   metrics                {OUT}/tables/*.csv
+SURROGATE = config["surrogate"]
+TRAINING_PATH = config["training_path"]
+VALIDATION_PATH = config["validation_path"]
+ML_PATHS = list(dict.fromkeys([VALIDATION_PATH, TRAINING_PATH]))
+# network name -> (targets, uses the history variables)
+NETWORKS = {
+    "sigma": ("sigma", True),
+    "tangent": ("tangent", True),
+    "sigma_nohist": ("sigma", False),
+    "tangent_nohist": ("tangent", False),
+}
+SURROGATE_THREADS = SURROGATE["torch_threads"]
+
+
+def model_file(network):
+    return f"{OUT}/models/nn_{network}.pt"
+
+
+def fem_ml_depends(wc):
+    """What a FEM–ML run depends on besides the models, so that editing it re-runs the rule."""
+    return {
+        "specimen": config["specimen"],
+        "newton": config["newton"],
+        "segments": config["load_paths"][wc.path]["segments"],
+        "out_of_range_tolerance": SURROGATE["out_of_range_tolerance"],
+    }
+
+
+rule dataset:
+    input:
+        reference_run(TRAINING_PATH),
+    output:
+        train=f"{OUT}/dataset/train.h5",
+        heldout=f"{OUT}/dataset/heldout.h5",
+    log:
+        f"{OUT}/logs/surrogate/dataset.log",
+    benchmark:
+        f"{OUT}/benchmarks/surrogate/dataset.tsv"
+    params:
+        seed=config["seed"],
+        train_fraction=SURROGATE["train_fraction"],
+    threads: 1
+    script:
+        "../../scripts/surrogate_dataset.py"
+
+
+for _network, (_kind, _history) in NETWORKS.items():
+
+    rule:
+        name:
+            f"train_{_network}"
+        input:
+            train=f"{OUT}/dataset/train.h5",
+            heldout=f"{OUT}/dataset/heldout.h5",
+        output:
+            model=model_file(_network),
+            losses=f"{OUT}/training/{_network}.csv",
+            mae=f"{OUT}/training/{_network}_mae.csv",
+            figure=f"{OUT}/training/{_network}_loss.png",
+        log:
+            f"{OUT}/logs/surrogate/train_{_network}.log",
+        benchmark:
+            f"{OUT}/benchmarks/surrogate/train_{_network}.tsv"
+        params:
+            kind=_kind,
+            use_history=_history,
+            settings={k: v for k, v in SURROGATE.items() if k not in ("tangent", "out_of_range_tolerance", "newton", "anchor_initial_state")},
+            seed=config["seed"],
+        threads: SURROGATE_THREADS
+        script:
+            "../../scripts/surrogate_train.py"
+
+
+rule fem_ml:
+    input:
+        sigma=model_file("sigma"),
+        tangent=model_file("tangent"),
+    output:
+        f"{OUT}/fem_ml/{{path}}.h5",
+    log:
+        f"{OUT}/logs/fem_ml/{{path}}.log",
+    benchmark:
+        f"{OUT}/benchmarks/fem_ml/{{path}}.tsv"
+    params:
+        tangent=SURROGATE["tangent"],
+        depends=fem_ml_depends,
+    threads: SURROGATE_THREADS
+    script:
+        "../../scripts/run_fem_ml.py"
+
+
+rule fem_ml_nohist:
+    input:
+        sigma=model_file("sigma_nohist"),
+        tangent=model_file("tangent_nohist"),
+    output:
+        f"{OUT}/fem_ml_nohist/{{path}}.h5",
+    log:
+        f"{OUT}/logs/fem_ml_nohist/{{path}}.log",
+    benchmark:
+        f"{OUT}/benchmarks/fem_ml_nohist/{{path}}.tsv"
+    params:
+        tangent=SURROGATE["tangent"],
+        depends=fem_ml_depends,
+    threads: SURROGATE_THREADS
+    script:
+        "../../scripts/run_fem_ml.py"
+
+
+rule fem_ml_tangent:
+    input:
+        sigma=model_file("sigma"),
+        tangent=model_file("tangent"),
+    output:
+        f"{OUT}/fem_ml_{{tangent}}/{{path}}.h5",
+    log:
+        f"{OUT}/logs/fem_ml_{{tangent}}/{{path}}.log",
+    benchmark:
+        f"{OUT}/benchmarks/fem_ml_{{tangent}}/{{path}}.tsv"
+    wildcard_constraints:
+        tangent="nn|autodiff",
+    params:
+        tangent=lambda wc: wc.tangent,
+        depends=fem_ml_depends,
+    threads: SURROGATE_THREADS
+    script:
+        "../../scripts/run_fem_ml.py"
+
+
+METRICS_TABLES = {
+    "stress_error_by_gp": f"{OUT}/tables/fem_ml_stress_error_by_gp.csv",
+    "stress_error": f"{OUT}/tables/fem_ml_stress_error.csv",
+    "curve_errors": f"{OUT}/tables/fem_ml_curve_errors.csv",
+    "newton_iterations": f"{OUT}/tables/fem_ml_newton_iterations.csv",
+    "out_of_range": f"{OUT}/tables/fem_ml_out_of_range.csv",
+    "training_mae": f"{OUT}/tables/surrogate_training_mae.csv",
+}
+
+
+rule metrics:
+    input:
+        references=[reference_run(p) for p in ML_PATHS],
+        fem_ml=[f"{OUT}/fem_ml/{p}.h5" for p in ML_PATHS],
+        fem_ml_nohist=[f"{OUT}/fem_ml_nohist/{p}.h5" for p in ML_PATHS],
+        tangent_runs=[f"{OUT}/fem_ml_{t}/{VALIDATION_PATH}.h5" for t in ("nn", "autodiff")],
+        train=f"{OUT}/dataset/train.h5",
+        heldout=f"{OUT}/dataset/heldout.h5",
+        training_mae=[f"{OUT}/training/{n}_mae.csv" for n in NETWORKS],
+    output:
+        **METRICS_TABLES,
+    log:
+        f"{OUT}/logs/surrogate/metrics.log",
+    benchmark:
+        f"{OUT}/benchmarks/surrogate/metrics.tsv"
+    params:
+        paths=ML_PATHS,
+        validation_path=VALIDATION_PATH,
+        networks=list(NETWORKS),
+        tangent=SURROGATE["tangent"],
+    threads: 1
+    script:
+        "../../scripts/surrogate_metrics.py"
+
+
+ALL_TARGETS += [
+    *[model_file(n) for n in NETWORKS],
+    *[f"{OUT}/training/{n}.csv" for n in NETWORKS],
+    *[f"{OUT}/fem_ml/{p}.h5" for p in ML_PATHS],
+    *[f"{OUT}/fem_ml_nohist/{p}.h5" for p in ML_PATHS],
+    *METRICS_TABLES.values(),
+]

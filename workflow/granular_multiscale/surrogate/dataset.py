@@ -46,8 +46,22 @@ class DatasetError(ValueError):
     """A reference run cannot make a dataset; the message names the file, variable, step or Gauss point."""
 
 
-def feature_names(use_history: bool = True) -> tuple[str, ...]:
-    return FEATURES if use_history else STRAIN_FEATURES
+def history_selection(history=True) -> tuple[str, ...]:
+    """Which history variables a network takes: True = φ1–φ3 (the paper), False = none (the
+    ablation), or a list of names from ``history.HIST`` (config ``surrogate.history_variables``)."""
+    if history is True:
+        return HIST
+    if history is False or history is None:
+        return ()
+    chosen = tuple(str(h) for h in history)
+    unknown = [h for h in chosen if h not in HIST]
+    if unknown or len(set(chosen)) != len(chosen):
+        raise ValueError(f"config key 'surrogate.history_variables': expected distinct names from {list(HIST)}, got {list(chosen)}")
+    return tuple(h for h in HIST if h in chosen)
+
+
+def feature_names(history=True) -> tuple[str, ...]:
+    return STRAIN_FEATURES + history_selection(history)
 
 
 def target_names(kind: str) -> tuple[str, ...]:
@@ -186,11 +200,12 @@ def read_dataset(path: str | Path) -> xr.Dataset:
     return ds
 
 
-def features(ds: xr.Dataset, use_history: bool = True) -> np.ndarray:
-    """[step·gp, 9] (or 6 without history) raw feature matrix, samples ordered step-major."""
+def features(ds: xr.Dataset, history=True) -> np.ndarray:
+    """[step·gp, 6 + n_history] raw feature matrix, samples ordered step-major (see history_selection)."""
     parts = [ds["strain"].transpose("step", "gp", "comp").values]
-    if use_history:
-        parts.append(ds["history"].transpose("step", "gp", "hist").values)
+    chosen = history_selection(history)
+    if chosen:
+        parts.append(ds["history"].sel(hist=list(chosen)).transpose("step", "gp", "hist").values)
     x = np.concatenate(parts, axis=-1)
     return x.reshape(-1, x.shape[-1])
 
@@ -203,14 +218,14 @@ def targets(ds: xr.Dataset, kind: str) -> np.ndarray:
     return y.reshape(-1, y.shape[-1])
 
 
-def scaling(ds: xr.Dataset, kind: str, use_history: bool = True) -> dict[str, np.ndarray]:
+def scaling(ds: xr.Dataset, kind: str, history=True) -> dict[str, np.ndarray]:
     """Feature and target min/max stored with the dataset (fitted on the training points)."""
-    n_feat = len(feature_names(use_history))
+    names = list(feature_names(history))
     var = "stress" if kind == "sigma" else "tangent"
     target_names(kind)
     return {
-        "x_min": ds["feature_min"].values[:n_feat],
-        "x_max": ds["feature_max"].values[:n_feat],
+        "x_min": ds["feature_min"].sel(feature=names).values,
+        "x_max": ds["feature_max"].sel(feature=names).values,
         "y_min": ds[f"{var}_min"].values,
         "y_max": ds[f"{var}_max"].values,
     }

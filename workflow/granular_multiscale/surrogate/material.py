@@ -19,6 +19,12 @@ Tangent options (config ``surrogate.tangent``):
   (``tensors`` module), so column J is divided by 1 (normal) or 2 (shear).
   This tangent is not symmetric in general.
 
+With ``anchor_initial_state`` (config ``surrogate.anchor_initial_state``, default on) a
+constant offset makes both networks reproduce the fresh state (zero strain and history)
+exactly: the consolidated stress −p0·1, with which the specimen starts in equilibrium, and
+its tangent (see :meth:`SurrogateModel.initial_offset`). Without it, the fit error at the
+origin (often a few kPa) puts the specimen out of balance before any load is applied.
+
 Inputs outside the training minimum–maximum are not an error (the networks extrapolate)
 but never pass silently: each step's count is logged and returned by :meth:`step_info`
 (``out_of_range_points``), which the solver writes to the run file.
@@ -38,7 +44,7 @@ from ..history import history_variables_torch
 from ..materials.base import MaterialPointSet
 from ..tensors import ENGINEERING_FACTOR, UPPER
 from .dataset import STRAIN_FEATURES
-from .models import SurrogateModel
+from .models import SurrogateModel, trial_features
 
 TANGENTS = ("nn", "autodiff")
 
@@ -67,6 +73,7 @@ class SurrogateMaterial(MaterialPointSet):
         tangent: str = "nn",
         out_of_range_tolerance: float = 0.0,
         logger: logging.Logger | None = None,
+        anchor_initial_state: bool = True,
     ):
         super().__init__(n_points)
         if tangent not in TANGENTS:
@@ -96,6 +103,9 @@ class SurrogateMaterial(MaterialPointSet):
         self._eng = torch.as_tensor(ENGINEERING_FACTOR, dtype=self.dtype)
         self._sym = torch.as_tensor(_SYMMETRIC_INDEX.ravel())
         self._range_bounds(out_of_range_tolerance)
+        self.anchor_initial_state = bool(anchor_initial_state)
+        self._sigma_offset = self._offset(self.sigma_model)
+        self._tangent_offset = self._offset(self.tangent_model) if self.tangent_model else None
 
         self._strain_c = np.zeros((self.n_points, 6))
         self._acc_c = np.zeros((self.n_points, 6))
@@ -113,10 +123,17 @@ class SurrogateMaterial(MaterialPointSet):
         tangent: str = "nn",
         out_of_range_tolerance: float = 0.0,
         logger: logging.Logger | None = None,
+        anchor_initial_state: bool = True,
     ) -> "SurrogateMaterial":
         sigma = SurrogateModel.load(sigma_path)
         nd = SurrogateModel.load(tangent_path) if (tangent == "nn" and tangent_path is not None) else None
-        return cls(n_points, sigma, nd, tangent, out_of_range_tolerance, logger)
+        return cls(n_points, sigma, nd, tangent, out_of_range_tolerance, logger, anchor_initial_state)
+
+    def _offset(self, model: SurrogateModel) -> torch.Tensor:
+        n_out = len(model.target_names)
+        if not self.anchor_initial_state:
+            return torch.zeros(n_out, dtype=self.dtype)
+        return torch.as_tensor(model.initial_offset(), dtype=self.dtype)
 
     # ---------------------------------------------------------------- inputs
     def _range_bounds(self, tolerance: float) -> None:
@@ -134,10 +151,7 @@ class SurrogateMaterial(MaterialPointSet):
 
     def _features(self, strain: torch.Tensor, acc_c: torch.Tensor, strain_c: torch.Tensor) -> torch.Tensor:
         """[..., 6] trial strain -> [..., 9] (or [..., 6] without history) network features."""
-        if not self.use_history:
-            return strain
-        acc = acc_c + torch.abs(strain - strain_c)
-        return torch.cat([strain, history_variables_torch(acc)], dim=-1)
+        return trial_features(strain, acc_c, strain_c, self.sigma_model.history)
 
     def _out_of_range(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per point: any feature outside the training range; excess in units of the training range."""
@@ -158,10 +172,10 @@ class SurrogateMaterial(MaterialPointSet):
                 jac, sigma = vmap(jacrev(self._stress_with_aux, has_aux=True))(eps, acc_c, eps_c)
                 tangent = jac / self._eng  # ∂σ/∂ε (tensorial) -> acts on engineering strain
             else:
-                sigma = self._sigma_net(x)
+                sigma = self._sigma_net(x) + self._sigma_offset
                 tangent = None
                 if need_tangent:
-                    upper = self._tangent_net(x)
+                    upper = self._tangent_net(x) + self._tangent_offset
                     tangent = upper[:, self._sym].reshape(-1, 6, 6)
         stress = sigma.numpy().copy()
         tangent_np = tangent.numpy().copy() if tangent is not None else None
@@ -171,7 +185,7 @@ class SurrogateMaterial(MaterialPointSet):
         return stress, tangent_np
 
     def _stress_with_aux(self, strain, acc_c, strain_c):
-        sigma = self._sigma_net(self._features(strain, acc_c, strain_c))
+        sigma = self._sigma_net(self._features(strain, acc_c, strain_c)) + self._sigma_offset
         return sigma, sigma
 
     def commit(self) -> None:

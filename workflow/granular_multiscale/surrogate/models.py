@@ -21,7 +21,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from .dataset import STRAIN_FEATURES, feature_names, target_names
+from ..history import HIST, history_variables_torch
+from .dataset import STRAIN_FEATURES, feature_names, history_selection, target_names
 
 FORMAT = "granular_multiscale.surrogate/1"
 ACTIVATIONS = {
@@ -35,14 +36,51 @@ ACTIVATIONS = {
 }
 
 
+def trial_features(strain: torch.Tensor, acc_c: torch.Tensor, strain_c: torch.Tensor, history=True) -> torch.Tensor:
+    """[..., 6] trial strain with the converged strain and Δε_acc of the last step -> network features.
+
+    Δε_acc = Δε_acc,c + |ε − ε_c| and φ = φ(Δε_acc): differentiable in the trial strain, so the
+    autodiff tangent and the Jacobian loss both see the chain rule through φ1–φ3. `history`
+    selects the φ's (see dataset.history_selection)."""
+    chosen = history_selection(history)
+    if not chosen:
+        return strain
+    acc = acc_c + torch.abs(strain - strain_c)
+    phi = history_variables_torch(acc)
+    if chosen != HIST:
+        phi = phi[..., [HIST.index(h) for h in chosen]]
+    return torch.cat([strain, phi], dim=-1)
+
+
 class ModelFileError(ValueError):
     """A model file is missing, unreadable or not a surrogate model; the message names the file."""
 
 
-def _safe_range(lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
-    # A constant feature (e.g. a shear strain that is zero everywhere) maps to 0, not to NaN.
+# A span below this fraction of the largest span of its unit group is roundoff, not data.
+NEGLIGIBLE_SPAN = 1e-9
+
+
+def scale_of(lo, hi, groups) -> np.ndarray:
+    """Divisor of the min–max scaling per column: max − min, or 1 for a constant column.
+
+    A column is constant when its span is below NEGLIGIBLE_SPAN times the largest span of
+    the columns it shares units with (`groups`: one id per column). On a symmetric mesh a
+    shear strain or stress can be zero up to roundoff (1e-20) at every training point:
+    dividing by that span would turn the next roundoff-sized input into an O(1) feature."""
+    lo, hi, groups = np.asarray(lo, float), np.asarray(hi, float), np.asarray(groups)
     span = hi - lo
-    return torch.where(span > 0, span, torch.ones_like(span))
+    scale = np.ones_like(span)
+    for g in np.unique(groups):
+        pick = groups == g
+        largest = span[pick].max(initial=0.0)
+        real = pick & (span > NEGLIGIBLE_SPAN * largest) & (span > 0)
+        scale[real] = span[real]
+    return scale
+
+
+def column_groups(n_columns: int, n_shared: int) -> np.ndarray:
+    """The first n_shared columns share units (strains, stresses, tangent entries); each other is its own."""
+    return np.concatenate([np.zeros(min(n_shared, n_columns), int), np.arange(1, 1 + max(n_columns - n_shared, 0))])
 
 
 class ScaledMLP(nn.Module):
@@ -68,15 +106,18 @@ class ScaledMLP(nn.Module):
         self.register_buffer("y_max", as_t(y_max))
         if self.x_min.shape != (n_in,) or self.y_min.shape != (n_out,):
             raise ValueError(f"scaling shapes {tuple(self.x_min.shape)}, {tuple(self.y_min.shape)} do not match {n_in} -> {n_out}")
+        # strains share units (the φ's each have their own); all targets share units
+        self.register_buffer("x_scale", as_t(scale_of(x_min, x_max, column_groups(n_in, 6))))
+        self.register_buffer("y_scale", as_t(scale_of(y_min, y_max, column_groups(n_out, n_out))))
 
     def scale_x(self, x: torch.Tensor) -> torch.Tensor:
-        return (x - self.x_min) / _safe_range(self.x_min, self.x_max)
+        return (x - self.x_min) / self.x_scale
 
     def scale_y(self, y: torch.Tensor) -> torch.Tensor:
-        return (y - self.y_min) / _safe_range(self.y_min, self.y_max)
+        return (y - self.y_min) / self.y_scale
 
     def unscale_y(self, y_scaled: torch.Tensor) -> torch.Tensor:
-        return y_scaled * _safe_range(self.y_min, self.y_max) + self.y_min
+        return y_scaled * self.y_scale + self.y_min
 
     def forward_scaled(self, x_scaled: torch.Tensor) -> torch.Tensor:
         return self.net(x_scaled)
@@ -95,11 +136,14 @@ class SurrogateModel:
     architecture: dict
     config: dict = field(default_factory=dict)
     training: dict = field(default_factory=dict)
+    #: mean features and targets of the fresh state (step 0) of the training points, see `initial_offset`
+    initial_state: dict = field(default_factory=dict)
 
     @classmethod
-    def create(cls, kind: str, use_history: bool, scaling: dict, settings: dict, config: dict | None = None) -> "SurrogateModel":
-        """A fresh (untrained) model; `settings` is the config's `surrogate` section."""
-        feats, targs = feature_names(use_history), target_names(kind)
+    def create(cls, kind: str, history, scaling: dict, settings: dict, config: dict | None = None) -> "SurrogateModel":
+        """A fresh (untrained) model; `history` as in dataset.history_selection; `settings` is the
+        config's `surrogate` section."""
+        feats, targs = feature_names(history), target_names(kind)
         arch = {
             "n_in": len(feats),
             "n_out": len(targs),
@@ -111,12 +155,28 @@ class SurrogateModel:
         return cls(net, kind, tuple(feats), tuple(targs), arch, dict(config or {}))
 
     @property
+    def history(self) -> tuple[str, ...]:
+        """The history variables among the features (empty for the ablation)."""
+        return tuple(self.feature_names[len(STRAIN_FEATURES):])
+
+    @property
     def use_history(self) -> bool:
-        return len(self.feature_names) > len(STRAIN_FEATURES)
+        return bool(self.history)
 
     @property
     def n_features(self) -> int:
         return len(self.feature_names)
+
+    def initial_offset(self) -> np.ndarray:
+        """Targets minus the network's prediction at the fresh state (zero strain, zero history).
+
+        Adding it to every prediction makes the model reproduce the initial state exactly (the
+        consolidated stress, with which the specimen starts in equilibrium) whatever the fit
+        error there; it is a constant, so it leaves every derivative unchanged."""
+        if not self.initial_state:
+            raise ValueError("this model file records no initial state (trained by an older version)")
+        x0 = np.asarray(self.initial_state["features"], dtype=float)[None, :]
+        return np.asarray(self.initial_state["targets"], dtype=float) - self.predict(x0)[0]
 
     def predict(self, x: np.ndarray) -> np.ndarray:
         """[n, n_features] raw features -> [n, n_targets] raw targets (numpy, no gradient)."""
@@ -140,6 +200,7 @@ class SurrogateModel:
             "state_dict": {k: v.detach().cpu().float() for k, v in net.state_dict().items()},
             "config": json.dumps(self.config),
             "training": json.dumps(self.training),
+            "initial_state": json.dumps(self.initial_state),
         }
         fd, tmp = tempfile.mkstemp(suffix=".pt.tmp", dir=path.parent)
         os.close(fd)
@@ -164,11 +225,18 @@ class SurrogateModel:
             raise ModelFileError(f"{path}: not a surrogate model file (expected format {FORMAT})")
         arch = payload["architecture"]
         net = ScaledMLP(**arch, **payload["scaling"])
-        net.load_state_dict(payload["state_dict"])
+        # x_scale/y_scale are derived from the min/max (recomputed below): not needed in the file
+        missing, unexpected = net.load_state_dict(payload["state_dict"], strict=False)
+        if unexpected or set(missing) - {"x_scale", "y_scale"}:
+            raise ModelFileError(f"{path}: weights do not fit the architecture (missing {missing}, unexpected {unexpected})")
         net = net.to(dtype)
         # reload the scaling buffers at full precision (they were created in float32)
         for k, v in net.exact_scaling.items():
             getattr(net, k).copy_(torch.as_tensor(v, dtype=dtype))
+        net.x_scale.copy_(torch.as_tensor(scale_of(net.exact_scaling["x_min"], net.exact_scaling["x_max"],
+                                                   column_groups(arch["n_in"], 6)), dtype=dtype))
+        net.y_scale.copy_(torch.as_tensor(scale_of(net.exact_scaling["y_min"], net.exact_scaling["y_max"],
+                                                   column_groups(arch["n_out"], arch["n_out"])), dtype=dtype))
         net.eval()
         net.requires_grad_(False)
         return cls(
@@ -179,4 +247,5 @@ class SurrogateModel:
             dict(arch),
             json.loads(payload["config"]),
             json.loads(payload["training"]),
+            json.loads(payload.get("initial_state", "{}")),
         )

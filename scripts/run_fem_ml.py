@@ -1,0 +1,21 @@
+"""Rules fem_ml, fem_ml_nohist, fem_ml_tangent: the FEM solver with the surrogate at the Gauss points."""
+
+from granular_multiscale.config import validate_config
+from granular_multiscale.data import write_run
+from granular_multiscale.runlog import setup_logging, timed_rule
+from granular_multiscale.surrogate.fem_ml import run_fem_ml
+
+
+def main(config, path_name, sigma, tangent_model, tangent, output, log) -> None:
+    config = validate_config(config)
+    logger = setup_logging(log)
+    with timed_rule(logger, f"FEM–ML {path_name} ({tangent} tangent)"):
+        ds = run_fem_ml(config, path_name, sigma, tangent_model, tangent, logger=logger)
+        write_run(ds, output, config)
+        logger.info("wrote %s (method %s, %.1f s in the solver)", output, ds.attrs["method"], ds.attrs["time_run_s"])
+
+
+if "snakemake" in globals():
+    sm = snakemake  # noqa: F821
+    main(dict(sm.config), sm.wildcards.path, sm.input.sigma, sm.input.tangent, sm.params.tangent, sm.output[0],
+         sm.log[0])
