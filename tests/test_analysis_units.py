@@ -43,15 +43,6 @@ def test_equivalent_shear_strain():
     assert quantities.local_axial_strain(np.array([0, 0, -e, 0, 0, 0])) == pytest.approx(e)
 
 
-def test_stress_error_per_point():
-    ref = np.zeros((3, 4, 6))
-    run = ref.copy()
-    run[:, 2, :] = 2e3  # Gauss point 2 off by 2 kPa in every component at every step
-    np.testing.assert_allclose(quantities.stress_error_per_point(run, ref), [0, 0, 2e3, 0])
-    with pytest.raises(ValueError, match="shape"):
-        quantities.stress_error_per_point(run[:, :3], ref)
-
-
 # -- the Gauss-point rule --------------------------------------------------------------
 
 

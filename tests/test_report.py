@@ -42,8 +42,7 @@ def test_tiny_pipeline_builds_the_report(tmp_path):
     override.write_text(yaml.safe_dump({
         "output_dir": str(out),
         "reference_material": "elastoplastic",
-        "surrogate": {"epochs": 20},
-    }))
+    }))  # training epochs as config/tiny.yaml sets them
     config_args = ["--configfile", "config/tiny.yaml", str(override)]
     snakemake("-j2", "all", *config_args)
     for name in FIGURES:

@@ -21,6 +21,7 @@ REFERENCE_LABEL = (
     else "FEM, elastoplastic model (reference)"
 )
 SURROGATE_LABEL = f"FEM–ML ({TANGENT} tangent)"
+OTHER_TANGENT = "autodiff" if TANGENT == "nn" else "nn"
 ABLATION_LABEL = "FEM–ML, no history"
 
 
@@ -38,8 +39,12 @@ def comparison_runs(path):
 
 
 def timing_runs(path):
-    """The comparison runs plus FEM–DEM at the other configured sphere counts (DEM reference only)."""
+    """The comparison runs, FEM–ML with the other tangent (the surrogate stage runs both on the
+    validation path), and FEM–DEM at the other configured sphere counts (DEM reference only)."""
     runs = comparison_runs(path)
+    ablation = runs.pop(ABLATION_LABEL)
+    runs[f"FEM–ML ({OTHER_TANGENT} tangent)"] = f"{OUT}/fem_ml_{OTHER_TANGENT}/{path}.h5"
+    runs[ABLATION_LABEL] = ablation
     if REFERENCE == "fem_dem":
         for n in ANALYSIS["fem_dem_sphere_counts"]:
             if n != config["dem"]["n_spheres"]:

@@ -73,7 +73,7 @@ def _box_edges(ax, lower, upper) -> None:
 
 def error_map(
     reference: xr.Dataset,
-    surrogate: xr.Dataset,
+    error_kpa: np.ndarray,
     train_gp,
     heldout_gp,
     out: str | Path,
@@ -83,20 +83,13 @@ def error_map(
     reference_label: str = "reference",
     figsize=(10.0, 5.5),
     dpi: int = 120,
-    error_kpa: np.ndarray | None = None,
 ) -> Path:
-    """Per-Gauss-point absolute stress error in 3D, training ○ vs held-out △ points.
-
-    ``error_kpa`` [gp] overrides the default error (mean over steps and the six components
-    of |σ_surrogate − σ_reference|, see ``quantities.stress_error_per_point``).
-    """
+    """Per-Gauss-point absolute stress error ``error_kpa`` [gp] drawn at the Gauss points of
+    ``reference`` in 3D, training ○ vs held-out △ points."""
     position = reference["gp_position"].values
-    if error_kpa is None:
-        error_kpa = 1e-3 * qty.stress_error_per_point(
-            surrogate["stress"].transpose("step", "gp", "comp").values,
-            reference["stress"].transpose("step", "gp", "comp").values,
-        )
     error_kpa = np.asarray(error_kpa, dtype=float)
+    if error_kpa.shape != (len(position),):
+        raise ValueError(f"error_kpa has shape {error_kpa.shape}, expected ({len(position)},)")
     if not np.all(np.isfinite(error_kpa)):
         bad = np.flatnonzero(~np.isfinite(error_kpa))
         raise ValueError(f"non-finite stress error at Gauss points {bad[:10].tolist()}")

@@ -17,7 +17,7 @@ import pandas as pd
 import xarray as xr
 
 from .. import data
-from . import fields, figures, selection, tables
+from . import fields, figures, metrics, selection, tables
 
 # height / width of each kind of figure
 ASPECT = {"line": 0.42, "error_map": 0.55, "speed": 0.45, "field_row": 0.36}
@@ -63,7 +63,9 @@ def make_error_map(reference_file, surrogate_file, train_file, heldout_file, out
     surrogate = data.read_run(surrogate_file)
     _check_same_mesh(reference, surrogate, reference_file, surrogate_file)
     train_gp, heldout_gp = gauss_point_split(train_file, heldout_file)
-    return figures.error_map(reference, surrogate, train_gp, heldout_gp, out, path_label=path_label,
+    by_gp = metrics.stress_error_by_gp(reference, surrogate, train_gp, heldout_gp)
+    error_kpa = 1e-3 * by_gp["mae_mean_pa"].to_numpy()
+    return figures.error_map(reference, error_kpa, train_gp, heldout_gp, out, path_label=path_label,
                              reference_label=reference_label, surrogate_label=surrogate_label,
                              figsize=_size(settings, "error_map"), dpi=_dpi(settings))
 

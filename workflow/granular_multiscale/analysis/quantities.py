@@ -60,17 +60,3 @@ def equivalent_shear_strain(strain: np.ndarray) -> np.ndarray:
     """ε_s = sqrt(2/3 e:e) of the tensorial strain; [..., 6] -> [...]."""
     e = _deviator(strain)
     return np.sqrt(2.0 / 3.0 * np.sum(_SHEAR_WEIGHT * e**2, axis=-1))
-
-
-def stress_error_per_point(stress: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Mean absolute stress error of each Gauss point over steps and the six components.
-
-    stress, reference: [step, gp, 6] in Pa -> [gp] in Pa. The FEM–ML stage's ``metrics``
-    module holds the metrics of the accuracy table; this is the quantity the error map
-    colours its points by (the paper's Fig. 10 'absolute error' per Gauss point).
-    """
-    stress = np.asarray(stress, dtype=float)
-    reference = np.asarray(reference, dtype=float)
-    if stress.shape != reference.shape:
-        raise ValueError(f"stress {stress.shape} and reference {reference.shape} differ in shape")
-    return np.abs(stress - reference).mean(axis=(0, 2))

@@ -18,6 +18,7 @@ import pandas as pd
 import xarray as xr
 
 from ..paths import LoadPath
+from . import metrics
 
 SPEEDUP_COLUMNS = (
     "source",
@@ -188,37 +189,34 @@ ACCURACY_COLUMNS = (
 
 def accuracy_row(reference: xr.Dataset, run: xr.Dataset, method: str, path: str,
                  train_gp=None, heldout_gp=None) -> dict:
-    """Errors of ``run`` against ``reference`` (same mesh and path), over steps 1..n.
+    """Errors of ``run`` against ``reference`` (same mesh and path), by the definitions of
+    ``analysis.metrics`` (the FEM–ML stage's metrics), gathered into one row.
 
     Stress MAE: mean |σ − σ_ref| over steps, the six components and the Gauss points of each
-    group (kPa). Top-force errors are relative to the largest reference top force
-    (max_k |F_ref|), so the near-zero force at the end of unloading does not blow them up.
+    group (kPa). Top-force errors in % of the largest reference top force (max_k |F_ref|), so
+    the near-zero force at the end of unloading does not blow them up.
     """
-    if reference.sizes["step"] != run.sizes["step"] or reference.sizes["gp"] != run.sizes["gp"]:
-        raise ValueError(f"{method}: not the reference's mesh and load path (steps or Gauss points differ)")
-    sl = slice(1, None)
-    err = np.abs(run["stress"].transpose("step", "gp", "comp").values[sl]
-                 - reference["stress"].transpose("step", "gp", "comp").values[sl])
-    per_gp = err.mean(axis=(0, 2)) * 1e-3
-    def group(ids):
-        if ids is None or len(ids) == 0:
-            return float("nan")
-        return float(per_gp[np.asarray(ids, dtype=int)].mean())
-    f_ref = np.asarray(reference["top_force"].values, dtype=float)[sl]
-    f_run = np.asarray(run["top_force"].values, dtype=float)[sl]
-    scale = max(float(np.max(np.abs(f_ref))), 1e-300)
-    dv = np.abs(np.asarray(run["volumetric_strain"].values)[sl] - np.asarray(reference["volumetric_strain"].values)[sl])
-    iterations = np.asarray(run["newton_iterations"].values, dtype=float)[sl]
+    train_gp = np.asarray([] if train_gp is None else train_gp, dtype=int)
+    heldout_gp = np.asarray([] if heldout_gp is None else heldout_gp, dtype=int)
+    stress = metrics.stress_error_summary(reference, run, train_gp, heldout_gp).set_index("split")
+
+    def mae_kpa(split):
+        return float(stress.loc[split, "mae_mean_pa"]) * 1e-3 if split in stress.index else float("nan")
+
+    curves = metrics.curve_errors(reference, run).set_index(["quantity", "phase"])
+    force = curves.loc[("top_force", "all")]
+    volume = curves.loc[("volumetric_strain", "all")]
+    iterations = np.asarray(run["newton_iterations"].values, dtype=float)[1:]
     return {
         "method": method,
         "path": path,
-        "stress_mae_heldout_kpa": group(heldout_gp),
-        "stress_mae_train_kpa": group(train_gp),
-        "stress_mae_all_kpa": float(per_gp.mean()),
-        "top_force_max_rel_pct": 100 * float(np.max(np.abs(f_run - f_ref))) / scale,
-        "top_force_rms_rel_pct": 100 * float(np.sqrt(np.mean((f_run - f_ref) ** 2))) / scale,
-        "volumetric_strain_max_abs_pct": 100 * float(dv.max()),
-        "newton_per_step": float(iterations.mean()),
+        "stress_mae_heldout_kpa": mae_kpa("heldout"),
+        "stress_mae_train_kpa": mae_kpa("train"),
+        "stress_mae_all_kpa": mae_kpa("all"),
+        "top_force_max_rel_pct": float(force["max_error_percent_of_peak"]),
+        "top_force_rms_rel_pct": float(force["rms_error_percent_of_peak"]),
+        "volumetric_strain_max_abs_pct": 100 * float(volume["max_abs_error"]),
+        "newton_per_step": float(iterations.mean()) if iterations.size else float("nan"),
     }
 
 
