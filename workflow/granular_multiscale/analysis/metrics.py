@@ -165,7 +165,7 @@ def out_of_range(runs: Mapping[str, xr.Dataset]) -> pd.DataFrame:
                                        "n_gp", "max_excess_of_training_range"])
 
 
-def compare(reference: xr.Dataset, run: xr.Dataset, train_gp, heldout_gp, **labels) -> dict[str, pd.DataFrame]:
+def compare(reference: xr.Dataset, run: xr.Dataset, train_gp, heldout_gp, /, **labels) -> dict[str, pd.DataFrame]:
     """All tables of one (reference, run) pair, each with the given label columns prepended."""
 
     def tag(df: pd.DataFrame) -> pd.DataFrame:

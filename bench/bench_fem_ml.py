@@ -1,0 +1,110 @@
+"""FEM–ML at the paper mesh (5×5×10 hexahedra = 2000 Gauss points) on Path2 (57 steps):
+wall time of the whole run with the nn tangent (NNσ + ND) and with the autodiff tangent
+(exact Jacobian of NNσ), Newton iterations and the material / assembly / solve split.
+
+The networks are material models, independent of the mesh: by default the bench uses the
+models of a finished default-scale run (results/models/nn_sigma.pt, nn_tangent.pt). When
+they are missing (or with --train) it trains a quick pair on the elastoplastic reference of
+Path1 at the default mesh (2×2×4), with the config's surrogate settings but --epochs epochs.
+The paper needed 0.2 h for this run (Table 4); the goal here is under 10 s.
+
+    .venv/bin/python bench/bench_fem_ml.py [--models results/models] [--train] [--epochs 150]
+                                           [--elements 5 5 10] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from granular_multiscale.config import load_config
+from granular_multiscale.fem.triaxial import TriaxialProblem
+from granular_multiscale.materials import make_material
+from granular_multiscale.paths import load_paths_from_config
+from granular_multiscale.surrogate.dataset import build_dataset
+from granular_multiscale.surrogate.fem_ml import run_fem_ml
+from granular_multiscale.surrogate.training import train
+
+
+def quick_models(config: dict, folder: Path, epochs: int) -> tuple[Path, Path]:
+    """Train NNσ and ND on the elastoplastic Path1 reference at the default mesh."""
+    t0 = time.perf_counter()
+    reference_config = dict(config, specimen=dict(config["specimen"], elements=[2, 2, 4]))
+    problem = TriaxialProblem.from_config(reference_config)
+    with make_material("elastoplastic", problem.n_gauss_points, reference_config) as material:
+        reference = problem.run(material, load_paths_from_config(config)["path1"], progress=False)
+    train_ds, heldout_ds = build_dataset(reference, config["surrogate"]["train_fraction"], config["seed"])
+    settings = dict(config["surrogate"], epochs=epochs, log_every=10**9)
+    paths = []
+    for kind in ("sigma", "tangent"):
+        model, _, _ = train(train_ds, heldout_ds, kind, settings, config["seed"], config=config)
+        paths.append(folder / f"nn_{kind}.pt")
+        model.save(paths[-1])
+    print(f"trained a quick NNσ + ND ({epochs} epochs) in {time.perf_counter() - t0:.0f} s")
+    return paths[0], paths[1]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", default=None, help="config file (default config/config.yaml)")
+    parser.add_argument("--models", default="results/models", help="folder with nn_sigma.pt and nn_tangent.pt")
+    parser.add_argument("--train", action="store_true", help="train a quick pair even if --models has one")
+    parser.add_argument("--epochs", type=int, default=150, help="epochs of the quick training")
+    parser.add_argument("--elements", type=int, nargs=3, default=[5, 5, 10])
+    parser.add_argument("--path", default="path2")
+    parser.add_argument("--json", default=None, help="write the numbers to this file")
+    args = parser.parse_args()
+
+    logging.basicConfig(level=logging.WARNING)
+    config = load_config(args.config, overrides={"reference_material": "elastoplastic"})
+    torch.set_num_threads(int(config["surrogate"]["torch_threads"]))
+    folder = Path(args.models)
+    sigma, tangent = folder / "nn_sigma.pt", folder / "nn_tangent.pt"
+    scratch = tempfile.TemporaryDirectory()
+    if args.train or not (sigma.is_file() and tangent.is_file()):
+        sigma, tangent = quick_models(config, Path(scratch.name), args.epochs)
+    else:
+        print(f"models: {sigma}, {tangent}")
+
+    paper = dict(config, specimen=dict(config["specimen"], elements=list(args.elements)))
+    n_steps = load_paths_from_config(paper)[args.path].n_steps
+    results = {}
+    for method in ("nn", "autodiff"):
+        t0 = time.perf_counter()
+        ds = run_fem_ml(paper, args.path, sigma, tangent, method, progress=False)
+        wall = time.perf_counter() - t0
+        results[method] = {
+            "wall_s": wall,
+            "solver_s": float(ds.attrs["time_run_s"]),
+            "material_s": float(ds.attrs["time_material_s"]),
+            "assembly_s": float(ds.attrs["time_assembly_s"]),
+            "solve_s": float(ds.attrs["time_solve_s"]),
+            "newton_iterations": int(ds["newton_iterations"].sum()),
+            "max_iterations_per_step": int(ds["newton_iterations"].max()),
+            "cutbacks": int(ds["cutbacks"].sum()),
+            "gauss_points": int(ds.sizes["gp"]),
+            "steps": n_steps,
+        }
+    print(f"FEM–ML {args.path}, mesh {'x'.join(map(str, args.elements))} "
+          f"({results['nn']['gauss_points']} Gauss points, {n_steps} steps), torch threads "
+          f"{torch.get_num_threads()}")
+    print(f"{'tangent':9s} {'wall s':>7s} {'material':>8s} {'assembly':>8s} {'solve':>6s} {'Newton':>7s} {'max/step':>8s} {'cutbacks':>8s}")
+    for method, r in results.items():
+        print(f"{method:9s} {r['wall_s']:7.2f} {r['material_s']:8.2f} {r['assembly_s']:8.2f} {r['solve_s']:6.2f} "
+              f"{r['newton_iterations']:7d} {r['max_iterations_per_step']:8d} {r['cutbacks']:8d}")
+    print("goal: under 10 s (the paper's FEM–ML run took 0.2 h)")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=2))
+    scratch.cleanup()
+    return results
+
+
+if __name__ == "__main__":
+    main()
