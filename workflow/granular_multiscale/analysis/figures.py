@@ -115,7 +115,12 @@ def error_map(
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
     ax.view_init(elev=18, azim=-55)
-    ax.legend(loc="upper left", bbox_to_anchor=(0.02, 0.98), fontsize=8, title="Gauss points", title_fontsize=8)
+    # legend markers in grey: their colour in the plot is the error, not the group
+    handles = [matplotlib.lines.Line2D([], [], linestyle="", marker=m, markersize=7, markerfacecolor="0.75",
+                                       markeredgecolor="k", label=f"{name} ({idx.size})")
+               for idx, m, name in ((train_gp, "o", "training"), (heldout_gp, "^", "held out"))]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(0.02, 0.98), fontsize=8, title="Gauss points",
+              title_fontsize=8)
     cax = fig.add_axes([0.6, 0.15, 0.015, 0.65])
     bar = fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap), cax=cax)
     bar.set_label("mean |σ error| (kPa)")
