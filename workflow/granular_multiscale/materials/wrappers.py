@@ -62,6 +62,10 @@ def eig_floor(D: np.ndarray, floor: float = 1e-3) -> tuple[np.ndarray, np.ndarra
     non-symmetric but positive-definite tangent keeps its skew part). Returns (tangent, repaired mask)."""
     D = np.asarray(D, dtype=float)
     lam, vec = np.linalg.eigh(_mandel(D))
+    return _floored(D, lam, vec, floor)
+
+
+def _floored(D: np.ndarray, lam: np.ndarray, vec: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
     scale = np.abs(lam).max(axis=-1)
     threshold = floor * scale
     repaired = lam[:, 0] < threshold
@@ -168,8 +172,10 @@ class TangentRepair(MaterialWrapper):
     def evaluate(self, strain, need_tangent: bool = True):
         stress, tangent = self.inner.evaluate(strain, need_tangent=need_tangent)
         if tangent is not None:
-            non_spd = non_spd_mask(tangent)
-            tangent, repaired = eig_floor(tangent, self.floor)
+            tangent = np.asarray(tangent, dtype=float)
+            lam, vec = np.linalg.eigh(_mandel(tangent))  # one decomposition for the count and the repair
+            non_spd = lam[:, 0] <= 0.0
+            tangent, repaired = _floored(tangent, lam, vec, self.floor)
             self._trial_counts = {"tangent_non_spd_points": float(non_spd.sum()),
                                   "tangent_repaired_points": float(repaired.sum())}
         return stress, tangent
