@@ -4,7 +4,8 @@ solve, the whole Path2 run, and why assembly does not use scikit-fem's BilinearF
 The run-time options (quarter symmetry, modified Newton) on the same run. With --fem-ml, the
 split for FEM–ML: NNσ + ND (tangent nn) and NNσ with its autodiff tangent at every Gauss
 point (paper architecture 4×20, trained briefly on the elastoplastic reference: a forward
-pass costs the same whatever the weights, the solve depends on the tangent).
+pass costs the same whatever the weights, the solve depends on the tangent). The whole
+FEM–ML run at this mesh, with iteration counts: bench/bench_fem_ml.py.
 
     .venv/bin/python bench/bench_fem.py [--elements 5 5 10] [--repeat 20] [--fem-ml]
 """
