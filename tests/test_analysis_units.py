@@ -103,7 +103,7 @@ def test_cell_average_uses_element_times_eight_plus_q():
 
 def test_resolve_steps_counts_negative_from_the_end():
     assert fields.resolve_steps([4, 16, -1], 58) == [4, 16, 57]
-    with pytest.raises(ValueError, match="field step 70"):
+    with pytest.raises(ValueError, match="analysis.field_steps.: step 70"):
         fields.resolve_steps([70], 58)
 
 

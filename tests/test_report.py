@@ -1,6 +1,6 @@
-"""The whole workflow at the tiny scale on the elastoplastic reference, then the HTML report:
-`snakemake all` must build every figure and table, and `snakemake --report` must put each
-of them, with its caption, and the headline numbers into one self-contained file."""
+"""The workflow at the tiny scale on the elastoplastic reference, then the HTML report:
+Snakemake must build every figure and table from scratch, and `snakemake --report` must put
+each of them, with its caption, and the headline numbers into one self-contained file."""
 
 import json
 import re
@@ -44,7 +44,11 @@ def test_tiny_pipeline_builds_the_report(tmp_path):
         "reference_material": "elastoplastic",
     }))  # training epochs as config/tiny.yaml sets them
     config_args = ["--configfile", "config/tiny.yaml", str(override)]
-    snakemake("-j2", "all", *config_args)
+    # what the report needs (rule all adds the FEM–ML runs of the training path and the
+    # surrogate stage's own metric tables, which its tests cover)
+    targets = [f"{out}/figures/{name}" for name in FIGURES] + [f"{out}/tables/{name}" for name in TABLES]
+    targets += [f"{out}/tables/headline.json", f"{out}/vtk/reference/path2", f"{out}/vtk/fem_ml/path2"]
+    snakemake("-j2", *config_args, "--", *targets)
     for name in FIGURES:
         assert (out / "figures" / name).stat().st_size > 10_000, name
     for name in TABLES:

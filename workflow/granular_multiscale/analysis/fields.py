@@ -23,6 +23,7 @@ import xarray as xr
 from skfem import MeshHex
 
 from . import quantities as qty
+from .selection import resolve_steps
 
 # scikit-fem's local hex vertex order -> VTK_HEXAHEDRON order (skfem.io.meshio uses the same)
 SKFEM_TO_VTK_HEX = np.array([0, 3, 6, 2, 1, 5, 7, 4])
@@ -125,17 +126,6 @@ def field_on_mesh(ds: xr.Dataset, quantity: str, step: int, n_elements: int) -> 
     q = FIELD_QUANTITIES[quantity]
     values = q.values(ds, step)
     return values if q.location == "point" else cell_average(values, n_elements)
-
-
-def resolve_steps(steps, n_steps: int) -> list[int]:
-    """Config steps (negative counts from the end: -1 = last) -> valid step numbers."""
-    resolved = []
-    for s in steps:
-        k = int(s) if int(s) >= 0 else n_steps + int(s)
-        if not 0 <= k < n_steps:
-            raise ValueError(f"field step {s} is outside the run's steps 0..{n_steps - 1}")
-        resolved.append(k)
-    return resolved
 
 
 # --------------------------------------------------------------------------------------

@@ -17,7 +17,10 @@ import pandas as pd
 import xarray as xr
 
 from .. import data
-from . import fields, figures, metrics, selection, tables
+from . import metrics, selection, tables
+
+# figures (matplotlib) and fields (pyvista/VTK) are imported where they are used: the table
+# rules then start in a fraction of the time.
 
 # height / width of each kind of figure
 ASPECT = {"line": 0.42, "error_map": 0.55, "speed": 0.45, "field_row": 0.36}
@@ -59,6 +62,8 @@ def specimen_bounds(ds: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
 
 def make_error_map(reference_file, surrogate_file, train_file, heldout_file, out, settings: Mapping, *,
                    path_label: str, reference_label: str, surrogate_label: str) -> Path:
+    from . import figures
+
     reference = data.read_run(reference_file)
     surrogate = data.read_run(surrogate_file)
     _check_same_mesh(reference, surrogate, reference_file, surrogate_file)
@@ -88,6 +93,8 @@ def stress_strain_points(reference: xr.Dataset, heldout_gp, settings: Mapping) -
 def make_stress_strain(run_files: Mapping[str, str], train_file, heldout_file, outs: Mapping[str, str],
                        settings: Mapping, *, path_label: str) -> dict[str, int]:
     """One figure per selected held-out Gauss point; ``outs`` maps point name -> PNG path."""
+    from . import figures
+
     runs = read_runs(run_files)
     reference = next(iter(runs.values()))
     train_gp, heldout_gp = gauss_point_split(train_file, heldout_file)
@@ -104,15 +111,19 @@ def make_stress_strain(run_files: Mapping[str, str], train_file, heldout_file, o
 
 
 def make_global_response(run_files: Mapping[str, str], out, settings: Mapping, *, path_label: str) -> Path:
+    from . import figures
+
     runs = read_runs(run_files)
     n_steps = next(iter(runs.values())).sizes["step"]
-    marked = fields.resolve_steps(settings.get("field_steps", [4, 16, -1]), n_steps)
+    marked = selection.resolve_steps(settings.get("field_steps", [4, 16, -1]), n_steps)
     return figures.global_response(runs, out, path_label=path_label, marked_steps=marked,
                                    figsize=_size(settings, "line"), dpi=_dpi(settings))
 
 
 def make_field_figure(reference_file, surrogate_file, quantity: str, out, settings: Mapping, *,
                       path_label: str, reference_label: str, surrogate_label: str) -> Path:
+    from . import fields
+
     reference = data.read_run(reference_file)
     surrogate = data.read_run(surrogate_file)
     _check_same_mesh(reference, surrogate, reference_file, surrogate_file)
@@ -128,11 +139,15 @@ def make_field_figure(reference_file, surrogate_file, quantity: str, out, settin
 
 
 def make_vtk(run_file, out_dir, stem: str) -> Path:
+    from . import fields
+
     return fields.write_vtu_series(data.read_run(run_file), out_dir, stem)
 
 
 def make_training_curves(curve_files: Mapping[str, str], out, settings: Mapping) -> Path:
     """``curve_files`` keys are 'panel|series' (see ``figures.training_curves``)."""
+    from . import figures
+
     curves = {}
     for key, path in curve_files.items():
         try:
@@ -251,6 +266,8 @@ def make_speedup_outputs(run_files: Mapping[str, str], out_csv, out_html, *, pat
 
 def make_speed_vs_error(speedup_csv, accuracy_csv, out, settings: Mapping) -> Path:
     """Join the two tables on the method label; the reference gets error 0."""
+    from . import figures
+
     speed = pd.read_csv(speedup_csv)
     speed = speed[speed["source"] == "this run"]
     accuracy = pd.read_csv(accuracy_csv)

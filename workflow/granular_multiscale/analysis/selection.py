@@ -10,6 +10,8 @@ take the one nearest to each of three anchor points of the specimen's bounding b
 
 Ties go to the lower Gauss-point index; the three points are distinct (a point already
 taken is skipped).
+
+The load steps of the field figures are chosen in the config too (``resolve_steps``).
 """
 
 from __future__ import annotations
@@ -58,3 +60,14 @@ def select_gauss_points(gp_position: np.ndarray, candidates, lower, upper) -> di
                 chosen[name] = int(candidates[k])
                 break
     return chosen
+
+
+def resolve_steps(steps, n_steps: int) -> list[int]:
+    """Config steps (negative counts from the end: -1 = last) -> valid step numbers."""
+    resolved = []
+    for s in steps:
+        k = int(s) if int(s) >= 0 else n_steps + int(s)
+        if not 0 <= k < n_steps:
+            raise ValueError(f"config key 'analysis.field_steps': step {s} is outside the run's steps 0..{n_steps - 1}")
+        resolved.append(k)
+    return resolved
