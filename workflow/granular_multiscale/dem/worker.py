@@ -264,7 +264,15 @@ def _handle_common(host: Host, cmd: str, args: dict):
 def _trial_child(conn: Connection, host: Host, args: dict, verdict_fd: int) -> None:
     """Run in a forked child: compute the trial, answer, then wait for the driver's verdict.
 
-    Returns only after ``commit`` (this process is then the holder); exits otherwise."""
+    Returns only after ``commit`` (this process is then the holder); exits otherwise, also when
+    the driver is gone (then the holder learns it from the closed pipe and leaves too)."""
+    try:
+        _trial_child_body(conn, host, args, verdict_fd)
+    except (OSError, EOFError):  # driver gone
+        os._exit(0)
+
+
+def _trial_child_body(conn: Connection, host: Host, args: dict, verdict_fd: int) -> None:
     try:
         result = host.impose(args["dstrain"])
     except Exception:
@@ -312,9 +320,12 @@ def _trial(conn: Connection, host: Host, args: dict) -> bool:
             return False
         os.close(w)
         verdict = _read_verdict(r)
-        if verdict is None:  # the child died without a word
+        if verdict is None:  # the child died without a word (or the driver is gone)
             os.waitpid(pid, 0)
-            conn.send(("error", f"DEM trial process {pid} of Gauss points {host.gps[:5]}... died"))
+            try:
+                conn.send(("error", f"DEM trial process {pid} of Gauss points {host.gps[:5]}... died"))
+            except OSError:
+                os._exit(0)
             return True
         kind, payload = verdict
         if kind == "commit":
@@ -324,7 +335,10 @@ def _trial(conn: Connection, host: Host, args: dict) -> bool:
             args = payload
             continue
         if kind == "rollback":
-            conn.send(("ok", None))
+            try:
+                conn.send(("ok", None))
+            except OSError:
+                os._exit(0)
             return True
         if kind == "failed":
             return True
@@ -332,7 +346,15 @@ def _trial(conn: Connection, host: Host, args: dict) -> bool:
 
 
 def serve(conn: Connection) -> None:
-    """Holder loop (also continued by a trial child after commit)."""
+    """Holder loop (also continued by a trial child after commit); leaves when the driver is gone."""
+    try:
+        _serve(conn)
+    except (OSError, EOFError):
+        pass
+    os._exit(0)
+
+
+def _serve(conn: Connection) -> None:
     host = Host()
     while True:
         try:
