@@ -1,2 +1,10 @@
 """DEM side: YADE RVEs. YADE code lives in modules run inside worker processes only,
-because ``from yade import *`` rebinds globals; nothing here imports yade at import time."""
+because ``from yade import *`` rebinds globals; nothing here imports yade at import time.
+
+* ``rve``        packing preparation (periodic cell, Table 1, Hertz–Mindlin, consolidation)
+* ``worker``     RVE host process: resident scenes, fork-based trials and rollback
+* ``executors``  local process pool or Dask actors holding the hosts
+* ``material``   ``DemMaterialPointSet``: the material-point set the FEM solver calls
+* ``run``        what the ``rve`` and ``fem_dem`` rule scripts call
+* ``yade_env``   one-thread YADE start-up shared by all of them
+"""
