@@ -10,6 +10,7 @@ from granular_multiscale.history import (
     accumulate_torch,
     accumulated_from_sequence,
     history_from_sequence,
+    history_jacobian_torch,
     history_variables,
     history_variables_torch,
 )
@@ -133,3 +134,14 @@ def test_torch_gradient_matches_finite_difference():
         [(history_variables(acc0 + h * e) - history_variables(acc0 - h * e)) / (2 * h) for e in np.eye(6)], axis=1
     )
     np.testing.assert_allclose(jac, fd, rtol=1e-6, atol=1e-14)
+
+
+def test_history_jacobian_matches_autograd():
+    rng = np.random.default_rng(5)
+    acc = np.abs(rng.normal(scale=1e-2, size=(8, 6)))
+    acc[2, 4] = 0.0  # a zero component: φ3's derivative along it is the product of the other five
+    acc[3] = 0.0  # fresh point: subgradient 0 for φ1
+    acc_t = torch.tensor(acc)
+    jac = torch.func.vmap(torch.func.jacrev(history_variables_torch))(acc_t).numpy()
+    np.testing.assert_allclose(history_jacobian_torch(acc_t).numpy(), jac, rtol=1e-12, atol=1e-30)
+    assert history_jacobian_torch(acc_t)[2, 2, 4] == pytest.approx(np.prod(np.delete(acc[2], 4)), rel=1e-12)

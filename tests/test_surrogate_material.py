@@ -172,6 +172,24 @@ def test_autodiff_tangent_matches_finite_differences(models):
     assert frozen.method == "fem_ml_autodiff"
 
 
+@pytest.mark.parametrize("activation", ["tanh", "gelu", "silu", "softplus", "elu", "sigmoid"])
+def test_forward_mode_tangent_equals_torch_func_jacobian(data, activation):
+    """The hand-written forward mode (one batched pass) is the Jacobian torch.func computes."""
+    from torch.func import jacrev, vmap
+
+    sigma = untrained(data, "sigma", seed=4, activation=activation)
+    sigma.network.to(torch.float64).requires_grad_(False)
+    strain_c, acc_c, trial = state_with_history(6, seed=6)
+    trial[0, 4] = strain_c[0, 4]  # a component with no increment: the kink of |ε − ε_c|
+    mat = SurrogateMaterial(6, sigma, tangent="autodiff")
+    mat.set_state({"strain": strain_c, "accumulated": acc_c})
+    stress, D = mat.evaluate(trial)
+    args = [torch.from_numpy(a) for a in (trial, acc_c, strain_c)]
+    jac, reference = vmap(jacrev(mat._stress_with_aux, has_aux=True))(*args)
+    np.testing.assert_allclose(stress, reference.numpy(), rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(D, jac.numpy() / ENGINEERING_FACTOR, rtol=1e-9, atol=1e-9 * np.abs(D).max())
+
+
 def test_autodiff_tangent_finite_at_fresh_state(models):
     sigma, _ = models
     mat = SurrogateMaterial(4, sigma, tangent="autodiff")

@@ -72,3 +72,23 @@ def accumulate_torch(acc_converged, strain_converged, strain):
     import torch
 
     return acc_converged + torch.abs(strain - strain_converged)
+
+
+def history_jacobian_torch(acc):
+    """[..., 6] Δε_acc -> [..., 3, 6] derivatives of (φ1, φ2, φ3) with respect to Δε_acc.
+
+    dφ1/dΔε_i = w_i Δε_i / φ1 (0 at φ1 = 0, the subgradient the autodiff version takes),
+    dφ2/dΔε_i = 1 for the normal components, dφ3/dΔε_i = the product of the other five
+    (prefix and suffix products: no division by a zero component)."""
+    import torch
+
+    weight = torch.as_tensor(_FROBENIUS_WEIGHT, dtype=acc.dtype, device=acc.device)
+    phi1 = history_variables_torch(acc)[..., :1]
+    d_phi1 = torch.where(phi1 > 0, weight * acc / torch.where(phi1 > 0, phi1, torch.ones_like(phi1)), 0.0 * acc)
+    d_phi2 = torch.zeros_like(acc)
+    d_phi2[..., :3] = 1.0
+    ones = torch.ones_like(acc[..., :1])
+    prefix = torch.cumprod(torch.cat([ones, acc[..., :-1]], dim=-1), dim=-1)
+    suffix = torch.flip(torch.cumprod(torch.cat([ones, torch.flip(acc, [-1])[..., :-1]], dim=-1), dim=-1), [-1])
+    d_phi3 = prefix * suffix
+    return torch.stack([d_phi1, d_phi2, d_phi3], dim=-2)

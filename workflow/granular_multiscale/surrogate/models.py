@@ -83,6 +83,27 @@ def column_groups(n_columns: int, n_shared: int) -> np.ndarray:
     return np.concatenate([np.zeros(min(n_shared, n_columns), int), np.arange(1, 1 + max(n_columns - n_shared, 0))])
 
 
+def activation_derivative(layer: nn.Module, z: torch.Tensor) -> torch.Tensor:
+    """Elementwise derivative of an activation layer at its input z."""
+    if isinstance(layer, nn.Tanh):
+        return 1.0 - torch.tanh(z) ** 2
+    if isinstance(layer, nn.ReLU):
+        return (z > 0).to(z.dtype)
+    if isinstance(layer, nn.GELU):  # exact (erf) GELU: Φ(z) + z φ(z)
+        return 0.5 * (1.0 + torch.erf(z / np.sqrt(2.0))) + z * torch.exp(-0.5 * z * z) / np.sqrt(2.0 * np.pi)
+    if isinstance(layer, nn.SiLU):
+        s = torch.sigmoid(z)
+        return s * (1.0 + z * (1.0 - s))
+    if isinstance(layer, nn.Softplus):
+        return torch.sigmoid(layer.beta * z) * (layer.beta * z <= layer.threshold) + (layer.beta * z > layer.threshold)
+    if isinstance(layer, nn.ELU):
+        return torch.where(z > 0, torch.ones_like(z), layer.alpha * torch.exp(z))
+    if isinstance(layer, nn.Sigmoid):
+        s = torch.sigmoid(z)
+        return s * (1.0 - s)
+    raise TypeError(f"no derivative for activation {type(layer).__name__}")
+
+
 class ScaledMLP(nn.Module):
     def __init__(self, n_in: int, n_out: int, hidden_layers: int, hidden_units: int, activation: str,
                  x_min, x_max, y_min, y_max):
@@ -125,6 +146,25 @@ class ScaledMLP(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Features in physical units -> targets in physical units."""
         return self.unscale_y(self.net(self.scale_x(x)))
+
+    def forward_with_tangents(self, x: torch.Tensor, dx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Targets [n, n_out] and their derivatives [n, n_out, k] along k input tangents dx [n, n_in, k].
+
+        Forward-mode differentiation written out for the Linear/activation stack: the tangents
+        are pushed through each layer as t <- act'(z) * (W t). One batched pass, no autograd
+        graph: several times faster than vmap(jacrev) for the small matrices of the surrogate."""
+        h = self.scale_x(x)
+        t = dx / self.x_scale[None, :, None]
+        layers = list(self.net)
+        for i, layer in enumerate(layers):
+            if isinstance(layer, nn.Linear):
+                h = torch.nn.functional.linear(h, layer.weight, layer.bias)
+                t = torch.einsum("oi,nik->nok", layer.weight, t)
+            else:
+                slope = activation_derivative(layer, h)
+                h = layer(h)
+                t = slope[:, :, None] * t
+        return self.unscale_y(h), t * self.y_scale[None, :, None]
 
 
 @dataclass
