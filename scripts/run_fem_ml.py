@@ -6,16 +6,17 @@ from granular_multiscale.runlog import setup_logging, timed_rule
 from granular_multiscale.surrogate.fem_ml import run_fem_ml
 
 
-def main(config, path_name, sigma, tangent_model, tangent, output, log) -> None:
+def main(config, path_name, sigma, tangent_model, tangent, output, log, allow_partial=False) -> None:
     config = validate_config(config)
     logger = setup_logging(log)
     with timed_rule(logger, f"FEM–ML {path_name} ({tangent} tangent)"):
-        ds = run_fem_ml(config, path_name, sigma, tangent_model, tangent, logger=logger)
+        ds = run_fem_ml(config, path_name, sigma, tangent_model, tangent, logger=logger, allow_partial=allow_partial)
         write_run(ds, output, config)
-        logger.info("wrote %s (method %s, %.1f s in the solver)", output, ds.attrs["method"], ds.attrs["time_run_s"])
+        logger.info("wrote %s (method %s, %d steps, completed %d)", output, ds.attrs["method"], ds.sizes["step"] - 1,
+                    ds.attrs["completed"])
 
 
 if "snakemake" in globals():
     sm = snakemake  # noqa: F821
     main(dict(sm.config), sm.wildcards.path, sm.input.sigma, sm.input.tangent, sm.params.tangent, sm.output[0],
-         sm.log[0])
+         sm.log[0], allow_partial=bool(sm.params.get("allow_partial", False)))

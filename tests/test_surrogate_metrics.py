@@ -95,3 +95,13 @@ def test_runs_that_do_not_match_are_refused():
         metrics.compare(ref, moved, [0], [1], run="x")
     tables = metrics.compare(ref, ref, [0, 1], [2, 3], path="path2", run="fem_ml")
     assert list(tables["curve_errors"].columns[:2]) == ["path", "run"]
+
+
+def test_newton_table_keeps_a_run_that_stopped_early():
+    ref = reference_run()
+    stopped = ref.isel(step=slice(0, 4))
+    table = metrics.newton_iterations({"reference": ref, "nn": stopped})
+    assert list(table.iterations_nn.iloc[:4]) == [0, 3, 2, 2]
+    assert table.iterations_nn.iloc[4:].isna().all()
+    with pytest.raises(ValueError, match="schedule"):
+        metrics.newton_iterations({"reference": ref, "x": ref.assign(axial_strain=ref.axial_strain * 2)})

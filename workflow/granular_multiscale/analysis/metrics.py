@@ -131,16 +131,22 @@ def curve_errors(reference: xr.Dataset, run: xr.Dataset) -> pd.DataFrame:
 
 
 def newton_iterations(runs: Mapping[str, xr.Dataset]) -> pd.DataFrame:
-    """Newton iterations (and cutbacks) per step, one column per run; runs must share the schedule."""
+    """Newton iterations (and cutbacks) per step, one column per run; runs share the schedule of
+    the first. A run that stopped early (attribute completed = 0) has empty cells after its last step."""
     first = next(iter(runs.values()))
+    n = first.sizes["step"]
     table = pd.DataFrame({"step": first["step"].values, "axial_strain": first["axial_strain"].values})
     if "phase" in first:
         table["phase"] = first["phase"].values.astype(str)
     for label, ds in runs.items():
-        check_comparable(first, ds, label)
-        table[f"iterations_{label}"] = ds["newton_iterations"].values
-        if "cutbacks" in ds:
-            table[f"cutbacks_{label}"] = ds["cutbacks"].values
+        m = ds.sizes["step"]
+        if m > n or not np.allclose(ds["axial_strain"].values, first["axial_strain"].values[:m], atol=1e-12):
+            raise ValueError(f"{label}: axial strain schedule differs from the first run's")
+        for name, column in (("newton_iterations", "iterations"), ("cutbacks", "cutbacks")):
+            if name in ds:
+                values = np.full(n, np.nan)
+                values[:m] = ds[name].values
+                table[f"{column}_{label}"] = pd.array(values, dtype="Int64") if m == n else values
     return table
 
 

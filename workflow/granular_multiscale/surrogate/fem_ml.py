@@ -15,6 +15,7 @@ from pathlib import Path
 import torch
 import xarray as xr
 
+from ..fem.newton import ConvergenceError
 from ..fem.triaxial import TriaxialProblem
 from ..paths import load_paths_from_config
 from .material import SurrogateMaterial
@@ -36,8 +37,13 @@ def run_fem_ml(
     logger: logging.Logger | None = None,
     progress: bool = True,
     checkpoint: str | Path | None = None,
+    allow_partial: bool = False,
 ) -> xr.Dataset:
-    """FEM–ML run of load path `path_name` (validated config); returns the run Dataset."""
+    """FEM–ML run of load path `path_name` (validated config); returns the run Dataset.
+
+    A step that does not converge raises ConvergenceError; with `allow_partial` (the runs that
+    only compare the two tangents' Newton iterations) the converged steps are returned instead,
+    marked ``completed = 0`` with ``stopped_at_step`` and ``stop_reason``."""
     logger = logger or logging.getLogger("granular_multiscale.fem_ml")
     paths = load_paths_from_config(config)
     if path_name not in paths:
@@ -61,8 +67,17 @@ def run_fem_ml(
         config["newton"]["tolerance"], config["newton"]["max_iterations"],
     )
     with material:
-        ds = problem.run(material, paths[path_name], method=material.method, checkpoint=checkpoint,
-                         logger=logger, progress=progress)
+        try:
+            ds = problem.run(material, paths[path_name], method=material.method, checkpoint=checkpoint,
+                             logger=logger, progress=progress)
+            ds.attrs["completed"] = 1
+        except ConvergenceError as error:
+            if not allow_partial or error.partial is None:
+                raise
+            ds = error.partial
+            ds.attrs["completed"] = 0
+            logger.error("FEM–ML %s with the %s tangent stopped: %s; keeping the %d converged steps "
+                         "(attribute completed = 0)", path_name, tangent, error, ds.sizes["step"])
     ds.attrs.update(
         {
             "surrogate_tangent": tangent,
