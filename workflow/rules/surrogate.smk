@@ -33,6 +33,8 @@ def fem_ml_depends(wc):
         "specimen": config["specimen"],
         "newton": config["newton"],
         "segments": config["load_paths"][wc.path]["segments"],
+        "surrogate_newton": SURROGATE["newton"],
+        "anchor_initial_state": SURROGATE["anchor_initial_state"],
         "out_of_range_tolerance": SURROGATE["out_of_range_tolerance"],
     }
 
