@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from granular_multiscale.config import load_config
+from granular_multiscale.config import validate_config
 from granular_multiscale.history import history_from_sequence
 from granular_multiscale.materials.elastoplastic import Elastoplastic
 from granular_multiscale.paths import load_paths_from_config
@@ -27,7 +27,7 @@ from granular_multiscale.tensors import COMP, TCOMP, tangent_to_upper
 
 @pytest.fixture(scope="module")
 def run():
-    config = load_config(overrides={"reference_material": "elastoplastic"})
+    config = validate_config({"reference_material": "elastoplastic"})
     path = load_paths_from_config(config)["path1"]
     n = 20
     return material_point_run(Elastoplastic.from_config(n, config), triaxial_strain_paths(path, n, seed=4), path)
@@ -125,7 +125,7 @@ def test_bad_runs_are_named(run):
 
 def test_synthetic_run_is_the_material_response(run):
     # the fixture itself: a fresh elastoplastic point answers the same at step 1
-    config = load_config(overrides={"reference_material": "elastoplastic"})
+    config = validate_config({"reference_material": "elastoplastic"})
     ep = Elastoplastic.from_config(run.sizes["gp"], config)
     s, D = ep.evaluate(run.strain.sel(step=1).values)
     np.testing.assert_allclose(run.stress.sel(step=1).values, s)

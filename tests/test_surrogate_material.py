@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from granular_multiscale.config import load_config
+from granular_multiscale.config import validate_config
 from granular_multiscale.history import accumulate, history_variables
 from granular_multiscale.materials.base import MaterialPointError
 from granular_multiscale.materials.elastic import LinearElastic
@@ -20,7 +20,7 @@ from granular_multiscale.surrogate.synthetic import material_point_run, triaxial
 from granular_multiscale.surrogate.training import initial_state, train
 from granular_multiscale.tensors import ENGINEERING_FACTOR, isotropic_elastic_tangent, tangent_from_upper
 
-CONFIG = load_config(overrides={"reference_material": "elastoplastic"})
+CONFIG = validate_config({"reference_material": "elastoplastic"})
 
 
 @pytest.fixture(scope="module")
