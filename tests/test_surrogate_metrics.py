@@ -105,3 +105,19 @@ def test_newton_table_keeps_a_run_that_stopped_early():
     assert table.iterations_nn.iloc[4:].isna().all()
     with pytest.raises(ValueError, match="schedule"):
         metrics.newton_iterations({"reference": ref, "x": ref.assign(axial_strain=ref.axial_strain * 2)})
+
+
+def test_partial_run_is_compared_over_the_steps_it_reached():
+    ref = reference_run()
+    partial = ref.isel(step=slice(0, 4)).copy(deep=True)
+    partial.attrs["completed"] = 0
+    partial["top_force"] = partial.top_force * 1.01
+    tables = metrics.compare(ref, partial, [0, 1], [2, 3], run="fem_ml")
+    curves = tables["curve_errors"].set_index(["quantity", "phase"])
+    assert curves.loc[("top_force", "all"), "completed"] == 0
+    assert curves.loc[("top_force", "all"), "steps_compared"] == 4
+    assert curves.loc[("top_force", "all"), "max_relative_error_percent"] == pytest.approx(1.0)
+    assert "reloading" not in curves.loc["top_force"].index  # not reached
+    # a complete run that is short is still refused
+    with pytest.raises(ValueError, match="steps"):
+        metrics.compare(ref, ref.isel(step=slice(0, 4)), [0], [1])

@@ -97,6 +97,7 @@ rule fem_ml:
     params:
         tangent=SURROGATE["tangent"],
         depends=fem_ml_depends,
+        allow_partial=SURROGATE["keep_partial_runs"],
     threads: SURROGATE_THREADS
     script:
         "../../scripts/run_fem_ml.py"
@@ -115,6 +116,7 @@ rule fem_ml_nohist:
     params:
         tangent=SURROGATE["tangent"],
         depends=fem_ml_depends,
+        allow_partial=SURROGATE["keep_partial_runs"],
     threads: SURROGATE_THREADS
     script:
         "../../scripts/run_fem_ml.py"

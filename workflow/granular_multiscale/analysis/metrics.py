@@ -11,6 +11,10 @@ shear components counted twice):
   path ("of peak"); and the pointwise relative error |q − q_ref| / |q_ref| at steps where
   |q_ref| is at least 1 % of its peak (where it crosses zero a pointwise ratio means nothing);
 * Newton iterations per step of every run side by side.
+
+A FEM–ML run that stopped before the end of its path (attribute ``completed = 0``, see
+``surrogate.fem_ml``) is compared over the steps it reached; every table says so
+(``completed``, ``steps_compared``).
 """
 
 from __future__ import annotations
@@ -30,6 +34,18 @@ PHASE_ORDER = ("loading", "unloading", "reloading")
 
 def stress_norm(stress: np.ndarray) -> np.ndarray:
     return np.sqrt(np.sum(_NORM_WEIGHT * np.asarray(stress) ** 2, axis=-1))
+
+
+def is_partial(run: xr.Dataset) -> bool:
+    """A run that stopped before the end of its load path (FEM–ML attribute completed = 0)."""
+    return int(run.attrs.get("completed", 1)) == 0
+
+
+def common_steps(reference: xr.Dataset, run: xr.Dataset, label: str = "run") -> xr.Dataset:
+    """The reference restricted to the steps a partial run reached (unchanged for a complete run)."""
+    if is_partial(run) and run.sizes["step"] < reference.sizes["step"]:
+        return reference.isel(step=slice(0, run.sizes["step"]))
+    return reference
 
 
 def check_comparable(reference: xr.Dataset, run: xr.Dataset, label: str = "run") -> None:
@@ -179,6 +195,9 @@ def compare(reference: xr.Dataset, run: xr.Dataset, train_gp, heldout_gp, /, **l
             df.insert(i, k, v)
         return df
 
+    # a run that stopped early is compared over the steps it reached, and says so
+    labels = dict(labels, completed=int(not is_partial(run)), steps_compared=int(run.sizes["step"]))
+    reference = common_steps(reference, run)
     return {
         "stress_error_by_gp": tag(stress_error_by_gp(reference, run, train_gp, heldout_gp)),
         "stress_error": tag(stress_error_summary(reference, run, train_gp, heldout_gp)),
