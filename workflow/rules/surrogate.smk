@@ -21,6 +21,12 @@ NETWORKS = {
     "tangent_nohist": ("tangent", False),
 }
 SURROGATE_THREADS = SURROGATE["torch_threads"]
+# the keys of `surrogate` that change a trained network (only these re-run the training rules)
+TRAINING_KEYS = [
+    "hidden_layers", "hidden_units", "activation", "batch_size", "learning_rate", "epochs", "lr_schedule",
+    "final_learning_rate", "jacobian_loss_weight", "loss", "log_every", "history_variables", "device",
+    "torch_threads",
+]
 
 
 def model_file(network):
@@ -77,7 +83,7 @@ for _network, (_kind, _history) in NETWORKS.items():
         params:
             kind=_kind,
             use_history=_history,
-            settings={k: v for k, v in SURROGATE.items() if k not in ("tangent", "out_of_range_tolerance", "newton", "anchor_initial_state")},
+            settings={k: SURROGATE[k] for k in TRAINING_KEYS},
             seed=config["seed"],
         threads: SURROGATE_THREADS
         script:
