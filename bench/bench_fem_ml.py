@@ -60,7 +60,8 @@ def main() -> None:
     parser.add_argument("--train", action="store_true", help="train a quick pair even if --models has one")
     parser.add_argument("--epochs", type=int, default=150, help="epochs of the quick training")
     parser.add_argument("--elements", type=int, nargs=3, default=[5, 5, 10])
-    parser.add_argument("--path", default="path2")
+    parser.add_argument("--path", default="path2",
+                        help="load path of the config, or 'monotonic': the same 57 steps loading straight to 4.5 %%")
     parser.add_argument("--json", default=None, help="write the numbers to this file")
     args = parser.parse_args()
 
@@ -76,6 +77,8 @@ def main() -> None:
         print(f"models: {sigma}, {tangent}")
 
     paper = dict(config, specimen=dict(config["specimen"], elements=list(args.elements)))
+    if args.path == "monotonic":  # same step count as Path2, without its reversal (timing only)
+        paper["load_paths"] = dict(config["load_paths"], monotonic={"segments": [[57, 0.045]]})
     n_steps = load_paths_from_config(paper)[args.path].n_steps
     results = {}
     for method in ("nn", "autodiff"):
