@@ -1,6 +1,5 @@
 # Shared helpers of all rule files: config validation, output locations, the list of targets.
 import sys
-from pathlib import Path
 
 from granular_multiscale.config import ConfigError, validate_config
 from granular_multiscale.paths import load_paths_from_config
@@ -27,8 +26,3 @@ def reference_run(path):
     """The reference run (FEM–DEM or the elastoplastic model) of a load path."""
     return f"{OUT}/{REFERENCE}/{path}.h5"
 
-
-# Not named `script`: a global of that name shadows the function Snakemake's `script:`
-# directive calls, and every rule with `script:` then fails with a TypeError.
-def script_path(name):
-    return str(Path(workflow.basedir) / "scripts" / name)
