@@ -24,12 +24,13 @@ def fd_tangent(material, strain, h=1e-8):
     return D
 
 
-def drained_triaxial(material, axial_path, p0=P0):
+def drained_triaxial(material, axial_path, p0=P0, before_commit=None):
     """One point in a drained triaxial test: ε33 = −axial, σ11 = σ22 = −p0, no shear.
-    Lateral strains found by Newton with the material's own tangent. Returns q and ε_v per step."""
+    Lateral strains found by Newton with the material's own tangent. Returns q and ε_v per step.
+    ``before_commit(k)`` lets a test inspect the converged trial of step k."""
     strain = np.zeros((1, 6))
     q, ev = [], []
-    for ea in axial_path:
+    for k, ea in enumerate(axial_path):
         strain[0, 2] = -ea
         for _ in range(50):
             stress, D = material.evaluate(strain)
@@ -39,6 +40,8 @@ def drained_triaxial(material, axial_path, p0=P0):
             strain[0, :2] -= np.linalg.solve(D[0, :2, :2], r)
         else:
             raise AssertionError("point driver did not converge")
+        if before_commit is not None:
+            before_commit(k)
         material.commit()
         q.append(-stress[0, 2] - p0)
         ev.append(strain[0, :3].sum())
@@ -141,22 +144,13 @@ def test_hysteresis_loop_with_reverse_yielding():
     reload = np.linspace(0.003, 0.009, 7)[1:]
     axial = np.concatenate([load, unload, reload])
     m = Elastoplastic(1, initial_stress=ISOTROPIC)
-    strain = np.zeros((1, 6))
-    q = []
     plastic_on_unloading = []
-    for k, ea in enumerate(axial):
-        strain[0, 2] = -ea
-        for _ in range(50):
-            stress, D = m.evaluate(strain)
-            r = stress[0, :2] + P0
-            if np.abs(r).max() < 1e-7 * P0:
-                break
-            strain[0, :2] -= np.linalg.solve(D[0, :2, :2], r)
+
+    def record_unloading_plasticity(k):
         if 10 <= k < 16:
             plastic_on_unloading.append(bool(m._last_plastic[0]))
-        m.commit()
-        q.append(-stress[0, 2] - P0)
-    q = np.array(q)
+
+    q, _ = drained_triaxial(m, axial, before_commit=record_unloading_plasticity)
     assert any(plastic_on_unloading), "unloading must yield in reverse"
     cycle = slice(9, 22)  # 0.9 % -> 0.3 % -> 0.9 %, closed in axial strain
     area = np.sum(0.5 * (q[cycle][1:] + q[cycle][:-1]) * np.diff(axial[cycle]))
