@@ -107,7 +107,7 @@ def test_tables_speed_vs_error_and_headline(runs):
     by = accuracy.set_index("method")
     assert by.loc[ML, "stress_mae_heldout_kpa"] < 0.5 * by.loc[NOHIST, "stress_mae_heldout_kpa"]
     assert by.loc[ML, "top_force_max_rel_pct"] < by.loc[NOHIST, "top_force_max_rel_pct"]
-    assert pd.read_csv(out / "tables/accuracy.csv").shape == (2, 9)
+    assert pd.read_csv(out / "tables/accuracy.csv").shape == (2, 10)
     fig = out / "figures/speed_vs_error.png"
     products.make_speed_vs_error(out / "tables/speedup.csv", out / "tables/accuracy.csv", fig, SETTINGS)
     check_png(fig, *products._size(SETTINGS, "speed"))
@@ -119,3 +119,55 @@ def test_tables_speed_vs_error_and_headline(runs):
     assert saved["stress_mae_heldout_kpa"] == pytest.approx(by.loc[ML, "stress_mae_heldout_kpa"])
     assert saved["gauss_points"] == 16 and saved["machine"]["cores"] >= 1
     assert headline["ablation_top_force_max_rel_pct"] > headline["top_force_max_rel_pct"]
+
+
+def test_a_run_that_stopped_early_is_reported_over_the_steps_it_reached(runs, tmp_path):
+    """A FEM–ML run kept after Newton failed at step 21 (attribute completed = 0, 20 load steps):
+    every table and figure accepts it, compares it over steps 0..20 and says it stopped."""
+    from granular_multiscale import data
+
+    full = data.read_run(runs["files"][ML])
+    partial = full.isel(step=slice(0, 21)).copy(deep=True)
+    partial.attrs["completed"] = 0
+    partial_file = tmp_path / "fem_ml_partial.h5"
+    partial.to_netcdf(partial_file, engine=data.ENGINE)
+    files = {REF: runs["files"][REF], ML: str(partial_file)}
+    split = (runs["out"] / "dataset/train.h5", runs["out"] / "dataset/heldout.h5")
+
+    accuracy = products.make_accuracy_table(files, *split, tmp_path / "accuracy.csv", tmp_path / "accuracy.html",
+                                            path_label="Path2").set_index("method")
+    complete = products.make_accuracy_table(runs["files"], *split, tmp_path / "a_full.csv", tmp_path / "a_full.html",
+                                            path_label="Path2").set_index("method")
+    assert accuracy.loc[ML, "load_steps_compared"] == 20 and complete.loc[ML, "load_steps_compared"] == 57
+    # the same stresses over fewer steps: the error differs from the whole path's, and is finite
+    assert np.isfinite(accuracy.loc[ML, "stress_mae_all_kpa"])
+    assert accuracy.loc[ML, "stress_mae_all_kpa"] != pytest.approx(complete.loc[ML, "stress_mae_all_kpa"])
+
+    speed = products.make_speedup_outputs(files, tmp_path / "speedup.csv", tmp_path / "speedup.html",
+                                          path_label="Path2", paper_reference=None, machine="test").set_index("method")
+    assert speed.loc[ML, "completed"] == "no" and speed.loc[ML, "load_steps"] == 20
+    per_step = lambda label, steps: speed.loc[label, "wall_time_s"] / steps  # noqa: E731
+    assert speed.loc[ML, "speedup"] == pytest.approx(per_step(REF, 57) / per_step(ML, 20))
+
+    fig = tmp_path / "speed_vs_error.png"
+    products.make_speed_vs_error(tmp_path / "speedup.csv", tmp_path / "accuracy.csv", fig, SETTINGS)
+    check_png(fig, *products._size(SETTINGS, "speed"))
+    assert products.legend_label(ML, partial) == f"{ML} (stopped after step 20)"
+    field = tmp_path / "fields.png"  # steps 4, 16 reached; the last (57) not
+    products.make_field_figure(files[REF], files[ML], "sigma23", field, SETTINGS, path_label="Path2",
+                               reference_label=REF, surrogate_label=ML)
+    check_png(field, *products._size(SETTINGS, "field_row", rows=3))
+    products.make_global_response(files, tmp_path / "global.png", SETTINGS, path_label="Path2")
+    check_png(tmp_path / "global.png", *products._size(SETTINGS, "line"))
+
+
+def test_a_complete_run_with_fewer_steps_is_another_path(runs, tmp_path):
+    from granular_multiscale import data
+
+    short = data.read_run(runs["files"][ML]).isel(step=slice(0, 21))
+    short.attrs["completed"] = 1
+    short.to_netcdf(tmp_path / "short.h5", engine=data.ENGINE)
+    with pytest.raises(ValueError, match=r"short\.h5.*21 steps, the reference has 58"):
+        products.make_accuracy_table({REF: runs["files"][REF], ML: str(tmp_path / "short.h5")},
+                                     runs["out"] / "dataset/train.h5", runs["out"] / "dataset/heldout.h5",
+                                     tmp_path / "a.csv", tmp_path / "a.html", path_label="Path2")

@@ -219,15 +219,17 @@ def field_comparison(
     elements = hex_elements(reference["node_position"].values)
     n_el = len(elements)
     steps = resolve_steps(steps, reference.sizes["step"])
-    if surrogate.sizes["step"] != reference.sizes["step"]:
-        raise ValueError(
-            f"reference has {reference.sizes['step']} steps, surrogate {surrogate.sizes['step']}: not the same path"
-        )
+    # a surrogate run that stopped early (metrics.is_partial) has no fields after its last step
+    last_surrogate_step = surrogate.sizes["step"] - 1
     renderer = PanelRenderer(window_size)
     fig, axes = plt.subplots(len(steps), 3, figsize=figsize, squeeze=False)
     fig.subplots_adjust(left=0.03, right=0.93, bottom=0.01, top=0.9, wspace=0.35, hspace=0.08)
     try:
         for row, step in enumerate(steps):
+            if step > last_surrogate_step:
+                _reference_only_row(fig, axes[row], renderer, reference, elements, quantity, step,
+                                    deformation_scale, labels, row == 0, last_surrogate_step)
+                continue
             ref_v = field_on_mesh(reference, quantity, step, n_el)
             sur_v = field_on_mesh(surrogate, quantity, step, n_el)
             diff = sur_v - ref_v
@@ -265,6 +267,35 @@ def field_comparison(
         renderer.close()
     fig.suptitle(title or f"{q.label} on the deformed mesh (displacement ×{deformation_scale:g})", fontsize=11)
     return save_figure(fig, out, dpi)
+
+
+def _reference_only_row(fig, axes, renderer, reference, elements, quantity, step, deformation_scale, labels,
+                        first_row, last_surrogate_step) -> None:
+    """A row at a step the surrogate run did not reach: the reference field, and say so."""
+    import matplotlib.pyplot as plt
+
+    q = FIELD_QUANTITIES[quantity]
+    values = field_on_mesh(reference, quantity, step, len(elements))
+    floor = NOISE_FRACTION * q.magnitude(reference, step)
+    signed = bool(values.min() < -floor and values.max() > floor)
+    lim = _limits(values, symmetric=signed, floor=floor)
+    cmap = "coolwarm" if signed else "viridis"
+    axes[0].imshow(renderer.render(deformed_grid(reference, elements, step, deformation_scale), values, q.location,
+                                   lim, cmap))
+    mappable = plt.cm.ScalarMappable(norm=plt.Normalize(*lim), cmap=cmap)
+    fig.colorbar(mappable, ax=axes[0], fraction=0.06, pad=0.02).ax.tick_params(labelsize=7)
+    for ax in axes[1:]:
+        ax.text(0.5, 0.5, f"not reached:\nthe run stopped\nafter step {last_surrogate_step}", transform=ax.transAxes,
+                ha="center", va="center", fontsize=9, color="0.3")
+    for col, ax in enumerate(axes):
+        ax.set_xticks([])
+        ax.set_yticks([])
+        for spine in ax.spines.values():
+            spine.set_visible(False)
+        if first_row:
+            name = labels[0] if col == 0 else labels[1] if col == 1 else f"{labels[1]} − {labels[0]}"
+            ax.set_title(textwrap.fill(name, 26), fontsize=9)
+    axes[0].set_ylabel(f"step {step}", fontsize=10)
 
 
 # --------------------------------------------------------------------------------------

@@ -42,16 +42,13 @@ def is_partial(run: xr.Dataset) -> bool:
 
 
 def common_steps(reference: xr.Dataset, run: xr.Dataset, label: str = "run") -> xr.Dataset:
-    """The reference restricted to the steps a partial run reached (unchanged for a complete run)."""
-    if is_partial(run) and run.sizes["step"] < reference.sizes["step"]:
-        return reference.isel(step=slice(0, run.sizes["step"]))
-    return reference
-
-
-def check_comparable(reference: xr.Dataset, run: xr.Dataset, label: str = "run") -> None:
-    """Same steps, same axial strain schedule, same Gauss points; raises naming what differs."""
-    if reference.sizes["step"] != run.sizes["step"]:
-        raise ValueError(f"{label}: {run.sizes['step']} steps, the reference has {reference.sizes['step']}")
+    """The reference restricted to the steps ``run`` shares with it, after checking that the two
+    are comparable (same mesh, same load path; a partial run may stop early). Raises naming
+    ``label`` and what differs."""
+    n_ref, n_run = reference.sizes["step"], run.sizes["step"]
+    if n_run != n_ref and not (is_partial(run) and n_run < n_ref):
+        raise ValueError(f"{label}: {n_run} steps, the reference has {n_ref}")
+    reference = reference.isel(step=slice(0, n_run))
     if not np.allclose(reference["axial_strain"].values, run["axial_strain"].values, rtol=1e-9, atol=1e-12):
         raise ValueError(f"{label}: axial strain schedule differs from the reference (another load path?)")
     if "gp" in reference.dims and reference.sizes["gp"] != run.sizes.get("gp", -1):
@@ -59,6 +56,12 @@ def check_comparable(reference: xr.Dataset, run: xr.Dataset, label: str = "run")
     if "gp_position" in reference and "gp_position" in run:
         if not np.allclose(reference["gp_position"].values, run["gp_position"].values, atol=1e-9):
             raise ValueError(f"{label}: Gauss-point positions differ from the reference (another mesh?)")
+    return reference
+
+
+def steps_reached(run: xr.Dataset) -> int:
+    """Load steps a run reached (step 0, the initial state, not counted)."""
+    return int(run.sizes["step"]) - 1
 
 
 def _stress_pair(reference: xr.Dataset, run: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
@@ -76,7 +79,7 @@ def split_labels(n_gp: int, train_gp, heldout_gp) -> np.ndarray:
 
 def stress_error_by_gp(reference: xr.Dataset, run: xr.Dataset, train_gp, heldout_gp) -> pd.DataFrame:
     """One row per Gauss point: split, MAE per component (Pa), mean relative error and its max over steps."""
-    check_comparable(reference, run)
+    reference = common_steps(reference, run)
     ref, val = _stress_pair(reference, run)
     mae = np.mean(np.abs(val - ref), axis=0)  # [gp, 6]
     rel = stress_norm(val - ref) / stress_norm(ref)  # [step, gp]
@@ -94,7 +97,7 @@ def stress_error_by_gp(reference: xr.Dataset, run: xr.Dataset, train_gp, heldout
 
 def stress_error_summary(reference: xr.Dataset, run: xr.Dataset, train_gp, heldout_gp) -> pd.DataFrame:
     """Rows heldout / train / all: MAE per component (Pa) over (step, point), relative errors."""
-    check_comparable(reference, run)
+    reference = common_steps(reference, run)
     ref, val = _stress_pair(reference, run)
     labels = split_labels(ref.shape[1], train_gp, heldout_gp)
     rows = []
@@ -132,7 +135,7 @@ def _curve_row(q: np.ndarray, q_ref: np.ndarray, peak: float) -> dict:
 
 def curve_errors(reference: xr.Dataset, run: xr.Dataset) -> pd.DataFrame:
     """Rows (quantity, phase) with phase 'all' and every load phase after step 0."""
-    check_comparable(reference, run)
+    reference = common_steps(reference, run)
     phase = reference["phase"].values.astype(str) if "phase" in reference else np.full(reference.sizes["step"], "all")
     rows = []
     for name in CURVE_QUANTITIES:
@@ -197,7 +200,6 @@ def compare(reference: xr.Dataset, run: xr.Dataset, train_gp, heldout_gp, /, **l
 
     # a run that stopped early is compared over the steps it reached, and says so
     labels = dict(labels, completed=int(not is_partial(run)), steps_compared=int(run.sizes["step"]))
-    reference = common_steps(reference, run)
     return {
         "stress_error_by_gp": tag(stress_error_by_gp(reference, run, train_gp, heldout_gp)),
         "stress_error": tag(stress_error_summary(reference, run, train_gp, heldout_gp)),

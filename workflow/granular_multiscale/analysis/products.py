@@ -37,8 +37,15 @@ def _dpi(settings: Mapping) -> int:
     return int(settings.get("dpi", 120))
 
 
+def legend_label(label: str, ds: xr.Dataset) -> str:
+    """The run's label, saying where a run that stopped early stopped."""
+    return f"{label} (stopped after step {metrics.steps_reached(ds)})" if metrics.is_partial(ds) else label
+
+
 def read_runs(files: Mapping[str, str | Path]) -> dict[str, xr.Dataset]:
-    return {label: data.read_run(path) for label, path in files.items()}
+    """{legend label: run} in the given order (the reference first)."""
+    runs = {label: data.read_run(path) for label, path in files.items()}
+    return {legend_label(label, ds): ds for label, ds in runs.items()}
 
 
 def gauss_point_split(train_file: str | Path, heldout_file: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -66,12 +73,12 @@ def make_error_map(reference_file, surrogate_file, train_file, heldout_file, out
 
     reference = data.read_run(reference_file)
     surrogate = data.read_run(surrogate_file)
-    _check_same_mesh(reference, surrogate, reference_file, surrogate_file)
+    metrics.common_steps(reference, surrogate, label=f"{surrogate_file} (against {reference_file})")
     train_gp, heldout_gp = gauss_point_split(train_file, heldout_file)
     by_gp = metrics.stress_error_by_gp(reference, surrogate, train_gp, heldout_gp)
     error_kpa = 1e-3 * by_gp["mae_mean_pa"].to_numpy()
     return figures.error_map(reference, error_kpa, train_gp, heldout_gp, out, path_label=path_label,
-                             reference_label=reference_label, surrogate_label=surrogate_label,
+                             reference_label=reference_label, surrogate_label=legend_label(surrogate_label, surrogate),
                              figsize=_size(settings, "error_map"), dpi=_dpi(settings))
 
 
@@ -126,12 +133,12 @@ def make_field_figure(reference_file, surrogate_file, quantity: str, out, settin
 
     reference = data.read_run(reference_file)
     surrogate = data.read_run(surrogate_file)
-    _check_same_mesh(reference, surrogate, reference_file, surrogate_file)
+    metrics.common_steps(reference, surrogate, label=f"{surrogate_file} (against {reference_file})")
     steps = settings.get("field_steps", [4, 16, -1])
     q = fields.FIELD_QUANTITIES[quantity]
     scale = float(settings.get("deformation_scale", 1.0))
     return fields.field_comparison(
-        reference, surrogate, quantity, steps, out, labels=(reference_label, surrogate_label),
+        reference, surrogate, quantity, steps, out, labels=(reference_label, legend_label(surrogate_label, surrogate)),
         title=f"{path_label}: {q.label} ({q.unit}) on the deformed mesh (displacement ×{scale:g})",
         deformation_scale=scale, figsize=_size(settings, "field_row", rows=len(steps)), dpi=_dpi(settings),
         window_size=tuple(settings.get("panel_pixels", (420, 620))),
@@ -155,13 +162,6 @@ def make_training_curves(curve_files: Mapping[str, str], out, settings: Mapping)
         except (OSError, pd.errors.ParserError) as error:
             raise data.DataFileError(f"training curve file {path}: {error}") from error
     return figures.training_curves(curves, out, figsize=_size(settings, "line"), dpi=_dpi(settings))
-
-
-def _check_same_mesh(a: xr.Dataset, b: xr.Dataset, file_a, file_b) -> None:
-    if a.sizes["gp"] != b.sizes["gp"] or not np.allclose(a["gp_position"].values, b["gp_position"].values):
-        raise ValueError(f"{file_a} and {file_b} are not on the same mesh (Gauss points differ)")
-    if a.sizes["step"] != b.sizes["step"]:
-        raise ValueError(f"{file_a} has {a.sizes['step']} steps, {file_b} {b.sizes['step']}: not the same load path")
 
 
 # --------------------------------------------------------------------------------------
@@ -208,14 +208,15 @@ def make_accuracy_table(run_files: Mapping[str, str], train_file, heldout_file, 
     rows = []
     for label in labels[1:]:
         run = data.read_run(run_files[label])
-        _check_same_mesh(reference, run, run_files[labels[0]], run_files[label])
+        metrics.common_steps(reference, run, label=f"{run_files[label]} (against {run_files[labels[0]]})")
         rows.append(tables.accuracy_row(reference, run, label, path_label, train_gp, heldout_gp))
     table = pd.DataFrame(rows, columns=list(tables.ACCURACY_COLUMNS))
     tables.write_csv(table, out_csv)
     tables.write_html_table(
         table, out_html, title=f"Accuracy against {labels[0]} on {path_label}",
         headers=ACCURACY_HEADERS,
-        note=("Stress MAE: mean |σ − σ_ref| over load steps 1..n and the six components, per group of Gauss "
+        note=("A run that stopped before the end of the path is compared over the load steps it reached. "
+              "Stress MAE: mean |σ − σ_ref| over load steps 1..n and the six components, per group of Gauss "
               f"points ({len(heldout_gp)} held out, {len(train_gp)} training). Top-force errors relative to the "
               "largest reference top force. Volumetric strain: largest absolute difference over the steps."),
     )
@@ -225,6 +226,7 @@ def make_accuracy_table(run_files: Mapping[str, str], train_file, heldout_file, 
 ACCURACY_HEADERS = {
     "method": "method",
     "path": "path",
+    "load_steps_compared": "load steps compared",
     "stress_mae_heldout_kpa": "stress MAE held-out GPs (kPa)",
     "stress_mae_train_kpa": "stress MAE training GPs (kPa)",
     "stress_mae_all_kpa": "stress MAE all GPs (kPa)",
@@ -239,6 +241,7 @@ SPEEDUP_HEADERS = {
     "method": "method",
     "path": "loading path",
     "load_steps": "total load steps",
+    "completed": "completed",
     "unloading_step": "unloading step",
     "reloading_step": "reloading step",
     "rves": "number of RVEs / Gauss points",
@@ -258,7 +261,8 @@ def make_speedup_outputs(run_files: Mapping[str, str], out_csv, out_html, *, pat
         table, out_html, title=f"Speedup on {path_label} (paper Table 4 layout)", headers=SPEEDUP_HEADERS,
         reference_rows=range(n_run, len(table)),
         note=(f"Rows from this run measured on {machine}: wall time of the FEM solve (load-step loop) read "
-              f"from each run file; speedup = time of {next(iter(run_files))} / time of the row. "
+              f"from each run file; speedup = time per load step of {next(iter(run_files))} / that of the row "
+              "(the whole-run ratio when both ran every step; a run with completed = no stopped early). "
               "Grey rows: the paper's Table 4 (2000 RVEs of 1000 spheres on the authors' machine), for reference only."),
     )
     return table
@@ -271,7 +275,7 @@ def make_speed_vs_error(speedup_csv, accuracy_csv, out, settings: Mapping) -> Pa
     speed = pd.read_csv(speedup_csv)
     speed = speed[speed["source"] == "this run"]
     accuracy = pd.read_csv(accuracy_csv)
-    merged = speed[["method", "wall_time_s"]].merge(accuracy, on="method", how="left")
+    merged = speed[["method", "wall_time_s", "load_steps", "completed"]].merge(accuracy, on="method", how="left")
     reference = speed["method"].iloc[0]
     error_columns = {"stress_mae_all_kpa": "stress MAE over all Gauss points (kPa)",
                      "top_force_max_rel_pct": "top-force max error (% of peak)"}
@@ -280,6 +284,9 @@ def make_speed_vs_error(speedup_csv, accuracy_csv, out, settings: Mapping) -> Pa
     missing = merged[merged[list(error_columns)].isna().any(axis=1)]["method"].tolist()
     if missing:
         raise ValueError(f"no accuracy row for {missing} in {accuracy_csv}")
+    stopped = merged["completed"].astype(str) == "no"
+    merged.loc[stopped, "method"] = [f"{m} (stopped after step {n}; time and error of those steps)"
+                                     for m, n in zip(merged.loc[stopped, "method"], merged.loc[stopped, "load_steps"])]
     merged = merged.rename(columns={"method": "label"})
     return figures.speed_vs_error(merged, out, errors=error_columns, figsize=_size(settings, "speed"), dpi=_dpi(settings))
 
@@ -307,6 +314,9 @@ def make_headline(speedup_csv, accuracy_csv, out, *, config: Mapping, reference_
         "reference_wall_time_s": float(this.loc[reference_label, "wall_time_s"]),
         "surrogate_wall_time_s": float(this.loc[surrogate_label, "wall_time_s"]),
         "speedup": float(this.loc[surrogate_label, "speedup"]),
+        "surrogate_completed": str(this.loc[surrogate_label, "completed"]) == "yes",
+        "surrogate_load_steps": int(this.loc[surrogate_label, "load_steps"]),
+        "reference_load_steps": int(this.loc[reference_label, "load_steps"]),
         "top_force_max_rel_pct": acc(surrogate_label, "top_force_max_rel_pct"),
         "stress_mae_heldout_kpa": acc(surrogate_label, "stress_mae_heldout_kpa"),
         "ablation": ablation_label,

@@ -25,6 +25,7 @@ SPEEDUP_COLUMNS = (
     "method",
     "path",
     "load_steps",
+    "completed",
     "unloading_step",
     "reloading_step",
     "rves",
@@ -68,9 +69,10 @@ def first_step(phases: np.ndarray, label: str) -> int | None:
 
 
 def describe_run(ds: xr.Dataset, method: str, path: str, source: str = "this run") -> dict:
-    """One row of the speedup table for a run file."""
+    """One row of the speedup table for a run file (``load_steps``: the steps it reached;
+    ``completed``: "no" for a FEM–ML run that stopped early, see ``metrics.is_partial``)."""
     phases = phase_labels(ds)
-    steps = int(ds.sizes["step"]) - 1
+    steps = metrics.steps_reached(ds)
     iterations = np.asarray(ds["newton_iterations"].values, dtype=float)
     wall = run_wall_time(ds)
     return {
@@ -78,6 +80,7 @@ def describe_run(ds: xr.Dataset, method: str, path: str, source: str = "this run
         "method": method,
         "path": path,
         "load_steps": steps,
+        "completed": "no" if metrics.is_partial(ds) else "yes",
         "unloading_step": first_step(phases, "unloading"),
         "reloading_step": first_step(phases, "reloading"),
         "rves": int(ds.sizes["gp"]),
@@ -95,6 +98,7 @@ def paper_rows(reference: Mapping) -> list[dict]:
         "source": source,
         "path": reference["path"],
         "load_steps": reference["load_steps"],
+        "completed": "yes",
         "unloading_step": reference["unloading_step"],
         "reloading_step": reference["reloading_step"],
         "rves": reference["rves"],
@@ -110,17 +114,22 @@ def paper_rows(reference: Mapping) -> list[dict]:
 
 
 def speedup_table(rows: Sequence[dict], paper_reference: Mapping | None = None) -> pd.DataFrame:
-    """Rows of :func:`describe_run`, the first being the reference; speedup = t_ref / t_method.
+    """Rows of :func:`describe_run`, the first being the reference; speedup = wall time per load
+    step of the reference / that of the row: the whole-run ratio t_ref / t_method when both ran
+    every step, and still a fair ratio for a run that stopped early.
 
     The paper's rows (``paper_reference``, see the config's ``analysis.paper_reference``)
     are appended after this run's rows."""
     if not rows:
         raise ValueError("speedup table needs at least the reference run")
-    t_ref = rows[0]["wall_time_s"]
+    def per_step(row):
+        return row["wall_time_s"] / max(row["load_steps"], 1)
+
+    t_ref = per_step(rows[0])
     table = []
     for row in rows:
         row = dict(row)
-        row["speedup"] = t_ref / row["wall_time_s"] if row["wall_time_s"] > 0 else float("nan")
+        row["speedup"] = t_ref / per_step(row) if row["wall_time_s"] > 0 else float("nan")
         table.append(row)
     if paper_reference:
         table.extend(paper_rows(paper_reference))
@@ -177,6 +186,7 @@ def write_csv(table: pd.DataFrame, out: str | Path, float_format: str = "%.10g")
 ACCURACY_COLUMNS = (
     "method",
     "path",
+    "load_steps_compared",
     "stress_mae_heldout_kpa",
     "stress_mae_train_kpa",
     "stress_mae_all_kpa",
@@ -192,7 +202,8 @@ def accuracy_row(reference: xr.Dataset, run: xr.Dataset, method: str, path: str,
     """Errors of ``run`` against ``reference`` (same mesh and path), by the definitions of
     ``analysis.metrics`` (the FEM–ML stage's metrics), gathered into one row.
 
-    Stress MAE: mean |σ − σ_ref| over steps, the six components and the Gauss points of each
+    A run that stopped early (``metrics.is_partial``) is compared over the steps it reached
+    (``load_steps_compared``). Stress MAE: mean |σ − σ_ref| over steps, the six components and the Gauss points of each
     group (kPa). Top-force errors in % of the largest reference top force (max_k |F_ref|), so
     the near-zero force at the end of unloading does not blow them up.
     """
@@ -210,6 +221,7 @@ def accuracy_row(reference: xr.Dataset, run: xr.Dataset, method: str, path: str,
     return {
         "method": method,
         "path": path,
+        "load_steps_compared": metrics.steps_reached(run),
         "stress_mae_heldout_kpa": mae_kpa("heldout"),
         "stress_mae_train_kpa": mae_kpa("train"),
         "stress_mae_all_kpa": mae_kpa("all"),
