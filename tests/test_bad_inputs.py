@@ -47,18 +47,15 @@ def test_run_file_with_a_flipped_block_names_the_file(run_file, tmp_path):
         read_run(damaged)
 
 
-@pytest.mark.xfail(strict=True, reason="surrogate.dataset.read_dataset passes h5py's OSError on without the file name")
 def test_corrupt_dataset_file_names_the_file(tmp_path):
-    from granular_multiscale.surrogate.dataset import read_dataset
+    from granular_multiscale.surrogate.dataset import DatasetError, read_dataset
 
     damaged = tmp_path / "train.h5"
     damaged.write_bytes(np.random.default_rng(0).bytes(4096))
-    with pytest.raises(Exception, match=r"train\.h5"):
+    with pytest.raises(DatasetError, match=r"train\.h5: not a readable dataset file"):
         read_dataset(damaged)
 
 
-@pytest.mark.xfail(strict=True, reason="SurrogateModel.load accepts features the project does not compute; the "
-                                       "autodiff material fails only at the first evaluation, naming a config key")
 def test_model_file_from_another_feature_set_names_the_file(tmp_path):
     """A model file whose inputs are not the project's features (here two fabric invariants in
     place of φ1, φ2): refused on loading, naming the file and the features."""

@@ -192,8 +192,11 @@ def read_dataset(path: str | Path) -> xr.Dataset:
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"dataset file not found: {path}")
-    with xr.open_dataset(path, engine="h5netcdf") as ds:
-        ds = ds.load()
+    try:
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            ds = ds.load()
+    except (OSError, ValueError) as error:  # h5py/h5netcdf on a damaged or truncated file
+        raise DatasetError(f"{path}: not a readable dataset file ({error})") from None
     for name in ("strain", "history", "stress", "tangent", "feature_min", "feature_max"):
         if name not in ds:
             raise DatasetError(f"{path}: variable '{name}' missing; not a surrogate dataset")

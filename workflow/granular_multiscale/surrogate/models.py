@@ -263,6 +263,11 @@ class SurrogateModel:
             raise ModelFileError(f"{path}: not a readable model file ({e})") from None
         if not isinstance(payload, dict) or payload.get("format") != FORMAT:
             raise ModelFileError(f"{path}: not a surrogate model file (expected format {FORMAT})")
+        names = tuple(payload.get("feature_names", ()))
+        history = names[len(STRAIN_FEATURES):]
+        if names[: len(STRAIN_FEATURES)] != STRAIN_FEATURES or any(h not in HIST for h in history):
+            raise ModelFileError(f"{path}: inputs {list(names)} are not features this project computes "
+                                 f"(the six strains {list(STRAIN_FEATURES)}, then history variables from {list(HIST)})")
         arch = payload["architecture"]
         net = ScaledMLP(**arch, **payload["scaling"])
         # x_scale/y_scale are derived from the min/max (recomputed below): not needed in the file
