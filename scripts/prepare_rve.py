@@ -5,8 +5,11 @@ from granular_multiscale.dem.run import prepare_rves
 from granular_multiscale.runlog import setup_logging, timed_rule
 
 
-def main(config: dict, packings: list[str], summary: str, log: str | None, threads: int) -> None:
+def main(config: dict, packings: list[str], summary: str, log: str | None, threads: int,
+         n_spheres: int | None = None) -> None:
     config = validate_config(config)
+    if n_spheres is not None:  # rule rve_spheres: another sphere count than dem.n_spheres
+        config["dem"]["n_spheres"] = n_spheres
     logger = setup_logging(log)
     with timed_rule(logger, f"rve ({len(packings)} packing(s) of {config['dem']['n_spheres']} spheres)"):
         prepare_rves(config, packings, summary, threads=threads, logger=logger)
@@ -14,4 +17,4 @@ def main(config: dict, packings: list[str], summary: str, log: str | None, threa
 
 if __name__ == "__main__" or "snakemake" in globals():
     main(dict(snakemake.config), list(snakemake.output.packings), snakemake.output.summary,  # noqa: F821
-         snakemake.log[0], snakemake.threads)  # noqa: F821
+         snakemake.log[0], snakemake.threads, getattr(snakemake.params, "n_spheres", None))  # noqa: F821

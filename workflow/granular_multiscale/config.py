@@ -32,10 +32,15 @@ def _key(path) -> str:
 
 
 def _as_number(value: Any, schema: dict) -> Any:
-    """YAML 1.1 reads `1e-4` (no dot, no exponent sign) as a string: accept it as the number it is."""
-    if isinstance(value, str) and schema.get("type") == "number":
+    """Numbers that arrive as strings, accepted as the numbers they are: YAML 1.1 reads `1e-4`
+    (no dot, no exponent sign) as a string, and Snakemake's --config reads the values nested in
+    a mapping (`--config 'analysis={fem_dem_sphere_counts: [100, 300]}'`) as strings."""
+    kind = schema.get("type")
+    if isinstance(value, list) and kind == "array" and isinstance(schema.get("items"), dict):
+        return [_as_number(v, schema["items"]) for v in value]
+    if isinstance(value, str) and kind in ("number", "integer"):
         try:
-            return float(value)
+            return float(value) if kind == "number" else int(value)
         except ValueError:
             return value
     return value

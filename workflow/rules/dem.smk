@@ -46,5 +46,47 @@ rule fem_dem:
         "../../scripts/run_fem_dem.py"
 
 
+# FEM–DEM at other sphere counts per RVE (analysis.fem_dem_sphere_counts): the same two rules
+# with packings of their own, for the speed-vs-error figure and the speedup/accuracy tables.
+#   {OUT}/rve_n{n}/...   {OUT}/fem_dem_n{n}/{path}.h5
+
+
+use rule rve as rve_spheres with:
+    output:
+        packings=[f"{OUT}/rve_n{{n}}/packing_{k}.yade.gz" for k in range(config["dem"]["n_packings"])],
+        summary=f"{OUT}/rve_n{{n}}/summary.json",
+    params:
+        dem={k: v for k, v in config["dem"].items() if k not in ("executor", "n_workers", "dask_scheduler", "newton")},
+        pressure=config["specimen"]["confining_pressure"],
+        seed=config["seed"],
+        n_spheres=lambda wildcards: int(wildcards.n),
+    log:
+        f"{OUT}/logs/rve_n{{n}}.log",
+    benchmark:
+        f"{OUT}/benchmarks/rve_n{{n}}.tsv"
+    wildcard_constraints:
+        n=r"\d+",
+
+
+use rule fem_dem as fem_dem_spheres with:
+    input:
+        packings=[f"{OUT}/rve_n{{n}}/packing_{k}.yade.gz" for k in range(config["dem"]["n_packings"])],
+    output:
+        f"{OUT}/fem_dem_n{{n}}/{{path}}.h5",
+    log:
+        f"{OUT}/logs/fem_dem_n{{n}}/{{path}}.log",
+    benchmark:
+        f"{OUT}/benchmarks/fem_dem_n{{n}}/{{path}}.tsv"
+    params:
+        checkpoint=f"{OUT}/checkpoints/fem_dem_n{{n}}/{{path}}.ckpt",
+        dem={k: v for k, v in config["dem"].items() if k not in ("executor", "n_workers", "dask_scheduler")},
+        specimen=config["specimen"],
+        newton=config["newton"],
+        path=lambda wildcards: config["load_paths"][wildcards.path],
+        n_spheres=lambda wildcards: int(wildcards.n),
+    wildcard_constraints:
+        n=r"\d+",
+
+
 if config["reference_material"] == "dem":
     ALL_TARGETS += [reference_run(p) for p in PATH_NAMES]

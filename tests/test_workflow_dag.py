@@ -1,0 +1,27 @@
+"""The workflow's job graph, dry-run (`snakemake -n`): what `all` schedules for a configuration."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SNAKEMAKE = str(Path(sys.executable).with_name("snakemake"))
+
+
+def test_other_sphere_counts_add_their_own_packing_and_fem_dem_run(tmp_path):
+    """Pass criterion: with analysis.fem_dem_sphere_counts = [60] (given on the command line, as a
+    user would), `all` schedules rve_spheres and fem_dem_spheres for 60 spheres, on the validation
+    path only, and feeds that run to the speedup and accuracy tables."""
+    out = tmp_path / "tiny"
+    command = [SNAKEMAKE, "-n", "all", "--configfile", "config/tiny.yaml", "--config", f"output_dir={out}",
+               "analysis={fem_dem_sphere_counts: [60]}"]
+    result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output[-3000:]
+    assert f"output: {out}/rve_n60/packing_0.yade.gz, {out}/rve_n60/summary.json" in output
+    assert f"output: {out}/fem_dem_n60/path2.h5" in output
+    assert f"{out}/fem_dem_n60/path1.h5" not in output
+    speedup_inputs = [line for line in output.splitlines() if line.strip().startswith("input:") and
+                      f"{out}/fem_dem_n60/path2.h5" in line]
+    assert len(speedup_inputs) == 2  # table_speedup and table_accuracy
+    assert not out.exists()
