@@ -46,3 +46,15 @@ def test_numbers_given_as_strings_are_read_as_numbers():
     assert config["analysis"]["fem_dem_sphere_counts"] == [100, 300]
     with pytest.raises(ConfigError, match=r"'analysis\.fem_dem_sphere_counts\[0\]'"):
         validate_config({"analysis": {"fem_dem_sphere_counts": ["many"]}})
+
+
+def test_fem_ml_newton_overrides_reach_the_solver():
+    """surrogate.newton overrides newton key by key for FEM–ML runs (unset keys stay newton's)."""
+    from granular_multiscale.surrogate.fem_ml import fem_ml_config
+
+    config = validate_config({"newton": {"line_search": True},
+                              "surrogate": {"newton": {"acceleration": "anderson", "tangent_repair": "eig_floor"}}})
+    newton = fem_ml_config(config)["newton"]
+    assert (newton["acceleration"], newton["tangent_repair"]) == ("anderson", "eig_floor")
+    assert newton["tolerance"] == 1e-4 and newton["line_search"] is True
+    assert config["newton"]["acceleration"] == "none"  # the reference runs keep theirs
