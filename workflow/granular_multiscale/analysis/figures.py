@@ -206,7 +206,7 @@ def global_response(
     for ax in (ax_f, ax_v):
         ax.set_xlabel("load step")
         ax.grid(alpha=0.3)
-    ax_f.legend(fontsize=8)
+    ax_f.legend(fontsize=8, loc="lower right")  # the force rises to the right: that corner is free
     note = ""
     if len(marked_steps):
         note = "\ndashed lines: steps " + ", ".join(str(s) for s in marked_steps) + " of the field figures"
@@ -294,6 +294,9 @@ def speed_vs_error(
             # less than a decade between the runs: label the minor ticks as well
             ax.yaxis.set_minor_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
             ax.tick_params(axis="y", which="minor", labelsize=7)
-    axes[0][0].legend(fontsize=7, loc="best")
+    # below the panels: inside, the long labels of partial runs would hide points and ticks
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=2, frameon=False)
+    fig.subplots_adjust(bottom=0.13 + 0.045 * ((len(labels) + 1) // 2))
     fig.suptitle("Speed vs error: each point one run on this machine (reference at error 0)", fontsize=10)
     return save_figure(fig, out, dpi)
