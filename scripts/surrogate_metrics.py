@@ -34,7 +34,8 @@ def main(inp, out, params, log) -> None:
         all_ml.update({f"fem_ml_{t}/{params.validation_path}": runs[t] for t in ("nn", "autodiff")})
         write_table(metrics.out_of_range(all_ml), out.out_of_range)
         mae = [pd.read_csv(f).assign(network=n) for n, f in zip(params.networks, inp.training_mae)]
-        write_table(pd.concat(mae, ignore_index=True)[["network", *mae[0].columns]], out.training_mae)
+        table = pd.concat(mae, ignore_index=True)
+        write_table(table[["network", *(c for c in table.columns if c != "network")]], out.training_mae)
 
         summary = pd.concat(tables["curve_errors"], ignore_index=True)
         force = summary[(summary.quantity == "top_force") & (summary.path == params.validation_path)]

@@ -172,3 +172,17 @@ def test_material_size_must_match_mesh():
     problem = TriaxialProblem(elements=(1, 1, 2))
     with pytest.raises(ValueError, match="material set has 8 points, the mesh 16 Gauss points"):
         problem.run(LinearElastic(8, 5e7, 0.2), SHORT, progress=False)
+
+
+def test_anderson_mixing_refuses_a_non_finite_correction():
+    """A diverged iterate (inf/NaN correction) must fail the step cleanly — so the solver cuts the
+    step back or stops naming it — and never reach the least-squares solve as NaN."""
+    from granular_multiscale.fem.newton import StepFailed, _Anderson
+
+    free = np.arange(4)
+    mixer = _Anderson(free, depth=3)
+    u = np.zeros(4)
+    first = mixer.step(u, np.array([1.0, 0.5, 0.0, 0.0]))
+    np.testing.assert_array_equal(first, [1.0, 0.5, 0.0, 0.0])  # no history yet: the plain correction
+    with pytest.raises(StepFailed, match="non-finite Newton correction"):
+        mixer.step(u + first, np.array([np.inf, 0.0, np.nan, 0.0]))

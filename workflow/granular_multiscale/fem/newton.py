@@ -240,6 +240,8 @@ class _Anderson:
     def step(self, u: np.ndarray, du: np.ndarray) -> np.ndarray:
         """The mixed correction to add to u, given the plain correction du at u."""
         x, f = u[self.free], du[self.free]
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(f))):
+            raise StepFailed("non-finite Newton correction (singular or non-finite tangent)")
         self.u.append(x.copy())
         self.f.append(f.copy())
         if len(self.u) > self.depth + 1:
@@ -249,7 +251,12 @@ class _Anderson:
             return du
         dU = np.diff(np.asarray(self.u), axis=0).T  # [n_free, m]
         dF = np.diff(np.asarray(self.f), axis=0).T
-        gamma, *_ = np.linalg.lstsq(dF, f, rcond=1e-10)
+        try:
+            gamma, *_ = np.linalg.lstsq(dF, f, rcond=1e-10)
+        except np.linalg.LinAlgError:
+            # degenerate history (e.g. corrections of wildly different size): restart from this iterate
+            self.u, self.f = self.u[-1:], self.f[-1:]
+            return du
         mixed = du.copy()
         mixed[self.free] = f - (dU + dF) @ gamma
         return mixed

@@ -76,8 +76,8 @@ def run_fem_ml(
                 raise
             ds = error.partial
             ds.attrs["completed"] = 0
-            logger.error("FEM–ML %s with the %s tangent stopped: %s; keeping the %d converged steps "
-                         "(attribute completed = 0)", path_name, tangent, error, ds.sizes["step"])
+            logger.error("FEM–ML %s with the %s tangent stopped: %s; keeping the converged steps 0..%d "
+                         "(attribute completed = 0)", path_name, tangent, error, ds.sizes["step"] - 1)
     ds.attrs.update(
         {
             "surrogate_tangent": tangent,
