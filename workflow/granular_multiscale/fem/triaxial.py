@@ -78,6 +78,21 @@ CHECKPOINT_VERSION = 2
 SYMMETRIES = ("none", "quarter")
 
 
+def _cost_split(timers, total: float) -> dict:
+    """Run-file attributes: the cost split of a run, complete or stopped early (a resumed run
+    counts only the part after the checkpoint)."""
+    return {
+        "time_material_s": timers.material,
+        "time_assembly_s": timers.assembly,
+        "time_solve_s": timers.solve,
+        "time_run_s": total,
+        "total_newton_corrections": timers.iterations,
+        "total_material_evaluations": timers.evaluations,
+        "total_tangent_evaluations": timers.tangent_evaluations,
+        "total_line_search_cuts": timers.line_search_cuts,
+    }
+
+
 class TriaxialProblem:
     def __init__(
         self,
@@ -307,7 +322,8 @@ class TriaxialProblem:
             except ConvergenceError as error:
                 if records["axial_strain"]:
                     error.partial = self._dataset(records, load_path, method)
-                    error.partial.attrs.update({"stopped_at_step": step, "stop_reason": str(error)})
+                    error.partial.attrs.update({"stopped_at_step": step, "stop_reason": str(error),
+                                                **_cost_split(timers, time.perf_counter() - t_run)})
                 logger.error("%s", error)
                 raise
             u, previous = result.u, result
@@ -342,17 +358,7 @@ class TriaxialProblem:
                 )
         total = time.perf_counter() - t_run
         ds = self._dataset(records, load_path, method)
-        # cost split of this run (a resumed run counts only the part after the checkpoint)
-        ds.attrs.update({
-            "time_material_s": timers.material,
-            "time_assembly_s": timers.assembly,
-            "time_solve_s": timers.solve,
-            "time_run_s": total,
-            "total_newton_corrections": timers.iterations,
-            "total_material_evaluations": timers.evaluations,
-            "total_tangent_evaluations": timers.tangent_evaluations,
-            "total_line_search_cuts": timers.line_search_cuts,
-        })
+        ds.attrs.update(_cost_split(timers, total))
         if checkpoint is not None:
             checkpoint.unlink(missing_ok=True)
         return ds
