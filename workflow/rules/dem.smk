@@ -5,6 +5,9 @@
 #            (not declared outputs: a rerun after a kill resumes from them)
 
 PACKINGS = [f"{OUT}/rve/packing_{k}.yade.gz" for k in range(config["dem"]["n_packings"])]
+# what defines a packing / a FEM–DEM run, not where it runs: a change of these reruns the rule
+PACKING_DEFINITION = {k: v for k, v in config["dem"].items() if k not in ("executor", "n_workers", "dask_scheduler", "newton")}
+RUN_DEFINITION = {k: v for k, v in config["dem"].items() if k not in ("executor", "n_workers", "dask_scheduler")}
 
 
 rule rve:
@@ -12,8 +15,7 @@ rule rve:
         packings=PACKINGS,
         summary=f"{OUT}/rve/summary.json",
     params:
-        # rerun when what defines a packing changes
-        dem={k: v for k, v in config["dem"].items() if k not in ("executor", "n_workers", "dask_scheduler", "newton")},
+        dem=PACKING_DEFINITION,
         pressure=config["specimen"]["confining_pressure"],
         seed=config["seed"],
     log:
@@ -36,8 +38,7 @@ rule fem_dem:
         f"{OUT}/benchmarks/fem_dem/{{path}}.tsv"
     params:
         checkpoint=f"{OUT}/checkpoints/fem_dem/{{path}}.ckpt",
-        # rerun when the run's definition changes (not where it runs)
-        dem={k: v for k, v in config["dem"].items() if k not in ("executor", "n_workers", "dask_scheduler")},
+        dem=RUN_DEFINITION,
         specimen=config["specimen"],
         newton=config["newton"],
         path=lambda wildcards: config["load_paths"][wildcards.path],
@@ -56,7 +57,7 @@ use rule rve as rve_spheres with:
         packings=[f"{OUT}/rve_n{{n}}/packing_{k}.yade.gz" for k in range(config["dem"]["n_packings"])],
         summary=f"{OUT}/rve_n{{n}}/summary.json",
     params:
-        dem={k: v for k, v in config["dem"].items() if k not in ("executor", "n_workers", "dask_scheduler", "newton")},
+        dem=PACKING_DEFINITION,
         pressure=config["specimen"]["confining_pressure"],
         seed=config["seed"],
         n_spheres=lambda wildcards: int(wildcards.n),
@@ -79,7 +80,7 @@ use rule fem_dem as fem_dem_spheres with:
         f"{OUT}/benchmarks/fem_dem_n{{n}}/{{path}}.tsv"
     params:
         checkpoint=f"{OUT}/checkpoints/fem_dem_n{{n}}/{{path}}.ckpt",
-        dem={k: v for k, v in config["dem"].items() if k not in ("executor", "n_workers", "dask_scheduler")},
+        dem=RUN_DEFINITION,
         specimen=config["specimen"],
         newton=config["newton"],
         path=lambda wildcards: config["load_paths"][wildcards.path],
