@@ -25,13 +25,13 @@ produced the file), ``sign_convention``.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 import yaml
+
+from .atomic import atomic_path
 
 ENGINE = "h5netcdf"
 
@@ -75,14 +75,8 @@ def write_run(ds: xr.Dataset, path: str | Path, config: dict | None = None) -> P
     missing = [v for v in REQUIRED_VARIABLES if v not in ds.variables]
     if missing:
         raise ValueError(f"refusing to write {path}: the run lacks variables {missing}")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         ds.to_netcdf(tmp, engine=ENGINE, invalid_netcdf=True)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path
 
 

@@ -10,7 +10,6 @@ reference; labels appear verbatim in the legends.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Mapping
 
@@ -22,6 +21,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 import xarray as xr  # noqa: E402
 
+from ..atomic import atomic_path
 from . import quantities as qty  # noqa: E402
 
 # reference first: black solid; then the surrogates, each in its own colour and dash
@@ -41,13 +41,12 @@ def style(k: int) -> dict:
 
 def save_figure(fig, out: str | Path, dpi: int) -> Path:
     """Write the PNG atomically (a failed write never leaves a half file) and close the figure."""
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    fig.savefig(tmp, dpi=dpi, format="png")
-    plt.close(fig)
-    os.replace(tmp, out)
-    return out
+    try:
+        with atomic_path(out) as tmp:
+            fig.savefig(tmp, dpi=dpi, format="png")
+    finally:
+        plt.close(fig)
+    return Path(out)
 
 
 def _shade_unloading(ax, phase: np.ndarray, x: np.ndarray | None = None) -> None:

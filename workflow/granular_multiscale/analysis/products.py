@@ -8,7 +8,6 @@ atomically. Runs are given as ordered ``{label: file}`` mappings, the reference 
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Mapping
 
@@ -16,6 +15,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
+from ..atomic import atomic_path
 from .. import data
 from . import metrics, selection, tables
 
@@ -176,12 +176,9 @@ def make_speedup_table(run_files: Mapping[str, str], out, *, path_label: str, pa
 
 
 def write_json(payload: Mapping, out) -> Path:
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    tmp.write_text(json.dumps(payload, indent=2, default=_json_default) + "\n")
-    os.replace(tmp, out)
-    return out
+    with atomic_path(out) as tmp:
+        tmp.write_text(json.dumps(payload, indent=2, default=_json_default) + "\n")
+    return Path(out)
 
 
 def _json_default(value):

@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
+from ..atomic import atomic_path
 from ..paths import LoadPath
 from . import metrics
 
@@ -171,12 +172,9 @@ def load_path_summary(path: LoadPath) -> dict:
 
 def write_csv(table: pd.DataFrame, out: str | Path, float_format: str = "%.10g") -> Path:
     """CSV written atomically (temporary name, then rename)."""
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    table.to_csv(tmp, index=False, float_format=float_format)
-    os.replace(tmp, out)
-    return out
+    with atomic_path(out) as tmp:
+        table.to_csv(tmp, index=False, float_format=float_format)
+    return Path(out)
 
 
 # --------------------------------------------------------------------------------------
@@ -279,9 +277,6 @@ def write_html_table(table: pd.DataFrame, out: str | Path, *, title: str, note: 
         + (f"<p class=\"note\">{html.escape(note)}</p>\n" if note else "")
         + "</body></html>\n"
     )
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    tmp.write_text(page)
-    os.replace(tmp, out)
-    return out
+    with atomic_path(out) as tmp:
+        tmp.write_text(page)
+    return Path(out)

@@ -10,15 +10,14 @@ import copy
 import json
 import logging
 import math
-import os
 import shutil
-import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_path
 from .rve import RVESpec, prepare_packing
 
 NEWTON_OVERRIDES = ("tolerance", "max_iterations", "max_cutbacks", "line_search", "tangent_repair")
@@ -45,11 +44,8 @@ def inertial_number(config: dict) -> float:
 
 
 def _write_json(path: Path, payload) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        json.dump(payload, f, indent=1)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(payload, indent=1))
 
 
 def prepare_rves(config: dict, packing_paths: list[str], summary_path: str, threads: int = 1,

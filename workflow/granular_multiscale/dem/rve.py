@@ -123,6 +123,14 @@ def stress_voigt(stress33: np.ndarray) -> np.ndarray:
     return np.array([s[0, 0], s[1, 1], s[2, 2], s[1, 2], s[0, 2], s[0, 1]])
 
 
+def stress_and_tangent(utils) -> tuple[np.ndarray, np.ndarray]:
+    """The cell's Love–Weber stress (Voigt) and contact-stiffness tangent (6×6, symmetric), from
+    ``utils.getStressAndTangent``; YADE fills only the upper triangle (j >= i) of the tangent."""
+    s, D = utils.getStressAndTangent(symmetry=True)
+    upper = np.triu(_matrix6_to_numpy(D))
+    return stress_voigt(_matrix3_to_numpy(s)), upper + np.triu(upper, 1).T
+
+
 def voigt_to_matrix3(v, Matrix3):
     """Voigt 11,22,33,23,13,12 (tensorial shear) -> symmetric YADE Matrix3."""
     v = [float(x) for x in v]
@@ -246,13 +254,10 @@ def consolidate(spec: RVESpec, log=print) -> dict:
     O.engines = build_engines(spec.consolidation_damping)
     gain, servo_steps = 0.5, 200
     while O.iter < spec.max_steps:
-        stress, tangent = utils.getStressAndTangent(symmetry=True)
-        s = stress_voigt(_matrix3_to_numpy(stress))
+        s, D = stress_and_tangent(utils)
         err = np.abs(s + p * np.array([1, 1, 1, 0, 0, 0])).max() / p
         if err < spec.stress_tolerance and utils.unbalancedForce() < spec.unbalanced_tolerance:
             break
-        D = np.triu(_matrix6_to_numpy(tangent))
-        D = D + np.triu(D, 1).T  # YADE fills the upper triangle only
         target = -p * np.array([1, 1, 1, 0, 0, 0])
         d_eng = gain * np.linalg.solve(D, target - s)  # engineering strain increment
         d_eps = d_eng * np.array([1, 1, 1, 0.5, 0.5, 0.5])

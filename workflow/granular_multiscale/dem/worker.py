@@ -90,12 +90,9 @@ class Host:
                 e.damping = float(damping)
 
     def _respond(self, k: int) -> tuple[np.ndarray, np.ndarray]:
-        from .rve import _matrix3_to_numpy, _matrix6_to_numpy, stress_voigt
+        from .rve import stress_and_tangent
 
-        s, D = self.utils.getStressAndTangent(symmetry=True)
-        # YADE fills only the upper triangle (j >= i) of its symmetric 6×6 tangent
-        upper = np.triu(_matrix6_to_numpy(D))
-        return stress_voigt(_matrix3_to_numpy(s)), upper + np.triu(upper, 1).T
+        return stress_and_tangent(self.utils)
 
     def load(self, gps: list[int], scenes: list[bytes], settings: dict) -> dict:
         """Load one scene per Gauss point (YADE scene strings) and compute their response."""

@@ -49,15 +49,14 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 import pickle
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
+from ..atomic import atomic_path
 from ..history import HIST, history_from_sequence
 from ..materials.wrappers import TangentRepair, UniformField
 from ..paths import LoadPath
@@ -454,15 +453,8 @@ class TriaxialProblem:
 
 def _save_checkpoint(path: Path, payload: dict) -> None:
     """Pickle atomically (temporary file + rename): a kill mid-write keeps the previous checkpoint."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            pickle.dump(payload, f, protocol=pickle.HIGHEST_PROTOCOL)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        pickle.dump(payload, f, protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def _load_checkpoint(path: Path) -> dict | None:

@@ -24,13 +24,12 @@ and the scaling ``feature_min/max(feature)``, ``stress_min/max(comp)``,
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
+from ..atomic import atomic_path
 from ..history import HIST, history_from_sequence
 from ..tensors import COMP, TCOMP
 
@@ -176,16 +175,8 @@ def build_dataset(run: xr.Dataset, train_fraction: float, seed: int, source: str
 
 def write_dataset(ds: xr.Dataset, path: str | Path) -> None:
     """Write atomically (temporary file in the target folder, then rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".h5.tmp", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         ds.to_netcdf(tmp, engine="h5netcdf")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def read_dataset(path: str | Path) -> xr.Dataset:

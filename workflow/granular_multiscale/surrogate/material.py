@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..history import HIST, history_jacobian_torch, history_variables_torch
+from ..history import HIST, accumulate, accumulate_torch, history_jacobian_torch, history_variables_torch
 from ..materials.base import MaterialPointSet
 from ..tensors import ENGINEERING_FACTOR, UPPER
 from .dataset import STRAIN_FEATURES
@@ -193,8 +193,7 @@ class SurrogateMaterial(MaterialPointSet):
         history = self.sigma_model.history
         if not history:
             return eye
-        acc = acc_c + torch.abs(strain - strain_c)
-        d_phi = history_jacobian_torch(acc)[:, [HIST.index(h) for h in history], :]
+        d_phi = history_jacobian_torch(accumulate_torch(acc_c, strain_c, strain))[:, [HIST.index(h) for h in history], :]
         return torch.cat([eye, d_phi * torch.sign(strain - strain_c)[:, None, :]], dim=1)
 
     def _stress_with_aux(self, strain, acc_c, strain_c):
@@ -205,7 +204,7 @@ class SurrogateMaterial(MaterialPointSet):
     def commit(self) -> None:
         if self._trial is None:
             raise RuntimeError(f"{type(self).__name__}.commit() called before evaluate()")
-        self._acc_c = self._acc_c + np.abs(self._trial - self._strain_c)
+        self._acc_c = accumulate(self._acc_c, self._strain_c, self._trial)
         self._strain_c = self._trial
         self._commits += 1
         flagged, excess = self._trial_out_of_range

@@ -12,8 +12,6 @@ predicts, the feature and target names, the scaling, the config and the training
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,7 +19,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..history import HIST, history_variables_torch
+from ..atomic import atomic_path
+from ..history import HIST, accumulate_torch, history_variables_torch
 from .dataset import STRAIN_FEATURES, feature_names, history_selection, target_names
 
 FORMAT = "granular_multiscale.surrogate/1"
@@ -45,8 +44,7 @@ def trial_features(strain: torch.Tensor, acc_c: torch.Tensor, strain_c: torch.Te
     chosen = history_selection(history)
     if not chosen:
         return strain
-    acc = acc_c + torch.abs(strain - strain_c)
-    phi = history_variables_torch(acc)
+    phi = history_variables_torch(accumulate_torch(acc_c, strain_c, strain))
     if chosen != HIST:
         phi = phi[..., [HIST.index(h) for h in chosen]]
     return torch.cat([strain, phi], dim=-1)
@@ -242,14 +240,8 @@ class SurrogateModel:
             "training": json.dumps(self.training),
             "initial_state": json.dumps(self.initial_state),
         }
-        fd, tmp = tempfile.mkstemp(suffix=".pt.tmp", dir=path.parent)
-        os.close(fd)
-        try:
+        with atomic_path(path) as tmp:
             torch.save(payload, tmp)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
 
     @classmethod
     def load(cls, path: str | Path, dtype: torch.dtype = torch.float64) -> "SurrogateModel":

@@ -21,6 +21,7 @@ import xarray as xr
 
 from torch.func import jvp
 
+from ..atomic import atomic_path
 from ..history import accumulated_from_sequence
 from ..tensors import ENGINEERING_FACTOR, tangent_from_upper
 from .dataset import features, history_selection, scaling, target_names, targets
@@ -234,35 +235,14 @@ def plot_losses(losses: dict[str, pd.DataFrame], path, loss_name: str = "MAE") -
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    import os
-    import tempfile
-    from pathlib import Path
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".png.tmp", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=120, format="png")
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=120, format="png")
     finally:
         plt.close(fig)
-        Path(tmp).unlink(missing_ok=True)
 
 
 def write_table(table: pd.DataFrame, path) -> None:
     """CSV written atomically (temporary file in the target folder, then rename)."""
-    import os
-    import tempfile
-    from pathlib import Path
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".csv.tmp", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         table.to_csv(tmp, index=False)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
