@@ -36,30 +36,18 @@ import torch
 
 from granular_multiscale.config import load_config
 from granular_multiscale.fem.newton import ConvergenceError
-from granular_multiscale.fem.triaxial import TriaxialProblem
-from granular_multiscale.materials import make_material
 from granular_multiscale.paths import load_paths_from_config
-from granular_multiscale.surrogate.dataset import build_dataset
 from granular_multiscale.surrogate.fem_ml import run_fem_ml
-from granular_multiscale.surrogate.training import train
+
+from bench_fem_ml_vs_dem import train_elastoplastic_models
 
 
 def quick_models(config: dict, folder: Path, epochs: int) -> tuple[Path, Path]:
-    """Train NNσ and ND on the elastoplastic Path1 reference at the default mesh."""
+    """Train NNσ and ND on the elastoplastic training-path reference at the default mesh."""
     t0 = time.perf_counter()
-    reference_config = dict(config, specimen=dict(config["specimen"], elements=[2, 2, 4]))
-    problem = TriaxialProblem.from_config(reference_config)
-    with make_material("elastoplastic", problem.n_gauss_points, reference_config) as material:
-        reference = problem.run(material, load_paths_from_config(config)["path1"], progress=False)
-    train_ds, heldout_ds = build_dataset(reference, config["surrogate"]["train_fraction"], config["seed"])
-    settings = dict(config["surrogate"], epochs=epochs, log_every=10**9)
-    paths = []
-    for kind in ("sigma", "tangent"):
-        model, _, _ = train(train_ds, heldout_ds, kind, settings, config["seed"], config=config)
-        paths.append(folder / f"nn_{kind}.pt")
-        model.save(paths[-1])
+    files = train_elastoplastic_models(config, (2, 2, 4), folder, epochs=epochs, log_every=10**9)
     print(f"trained a quick NNσ + ND ({epochs} epochs) in {time.perf_counter() - t0:.0f} s")
-    return paths[0], paths[1]
+    return files
 
 
 def main() -> None:

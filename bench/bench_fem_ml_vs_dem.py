@@ -68,29 +68,37 @@ def run_fem_dem(config, path, packing, workers, logger):
     return problem, ds, split, start, cfg["newton"]
 
 
-def surrogate_models(config, models_dir, problem, logger):
+def train_elastoplastic_models(config, elements, folder: Path, logger=None, **settings) -> tuple[Path, Path]:
+    """NNσ and ND trained on the elastoplastic reference run of the training path on a mesh of
+    `elements` (the config's specimen otherwise), with the config's surrogate settings
+    overridden by `settings`; returns the two model files written to `folder`."""
     from granular_multiscale.surrogate.dataset import build_dataset
     from granular_multiscale.surrogate.training import train
 
+    source = TriaxialProblem.from_config(dict(config, specimen=dict(config["specimen"], elements=list(elements))))
+    reference = source.run(Elastoplastic(source.n_gauss_points, initial_stress=source.initial_stress),
+                           load_paths_from_config(config)[config["training_path"]], progress=False)
+    train_ds, heldout_ds = build_dataset(reference, config["surrogate"]["train_fraction"], config["seed"])
+    files = []
+    for kind in ("sigma", "tangent"):
+        model, _, _ = train(train_ds, heldout_ds, kind, dict(config["surrogate"], **settings), config["seed"],
+                            config=config, logger=logger)
+        files.append(Path(folder) / f"nn_{kind}.pt")
+        model.save(files[-1])
+    return files[0], files[1]
+
+
+def surrogate_models(config, models_dir, problem, logger):
     if models_dir:
         folder = Path(models_dir)
         return folder / "nn_sigma.pt", folder / "nn_tangent.pt", f"pipeline models in {folder}"
-    paths = load_paths_from_config(config)
     # at least 2×2 elements across: one element across keeps ε12 at round-off, which the
     # networks' min–max scaling would turn into noise
     elements = tuple(max(n, m) for n, m in zip(problem.elements, (2, 2, 4)))
-    source = TriaxialProblem(size=problem.size, elements=elements, platen=problem.platen,
-                             confining_pressure=problem.confining_pressure)
-    reference = source.run(Elastoplastic(source.n_gauss_points, initial_stress=source.initial_stress),
-                           paths[config["training_path"]], progress=False)
-    train_ds, heldout_ds = build_dataset(reference, config["surrogate"]["train_fraction"], config["seed"])
-    settings = dict(config["surrogate"], epochs=150, learning_rate=5e-3, batch_size=256)
-    folder = Path(tempfile.mkdtemp(prefix="bench_models_"))
     t0 = time.perf_counter()
-    for kind, name in (("sigma", "nn_sigma.pt"), ("tangent", "nn_tangent.pt")):
-        model, _, _ = train(train_ds, heldout_ds, kind, settings, config["seed"], config=config, logger=logger)
-        model.save(folder / name)
-    return (folder / "nn_sigma.pt", folder / "nn_tangent.pt",
+    sigma, tangent = train_elastoplastic_models(config, elements, Path(tempfile.mkdtemp(prefix="bench_models_")),
+                                                logger, epochs=150, learning_rate=5e-3, batch_size=256)
+    return (sigma, tangent,
             f"trained here on the elastoplastic {config['training_path']} at {'x'.join(map(str, elements))} "
             f"({time.perf_counter() - t0:.0f} s, 150 epochs)")
 
