@@ -8,6 +8,7 @@ import pytest
 from granular_multiscale.fem.newton import ConvergenceError, NewtonSettings
 from granular_multiscale.fem.triaxial import TriaxialProblem
 from granular_multiscale.materials import Elastoplastic, LinearElastic, MaterialPointError
+from granular_multiscale.materials.elastoplastic import REVERSE_YIELDING
 from granular_multiscale.paths import LoadPath
 
 PATH2 = LoadPath("path2", ((9, 0.009), (6, 0.003), (42, 0.045)))
@@ -65,12 +66,12 @@ def test_fe_gauss_point_equals_point_wise_model_on_homogeneous_run():
     points equal the model driven point-wise through the same strain sequence."""
     problem = TriaxialProblem(size=(0.5, 0.5, 1.0), elements=(2, 2, 2), platen="smooth")
     path = LoadPath("loop", ((5, 0.01), (4, 0.002), (5, 0.02)))
-    ds = problem.run(Elastoplastic(problem.n_gauss_points, initial_stress=problem.initial_stress), path,
-                     progress=False)
+    ds = problem.run(Elastoplastic(problem.n_gauss_points, **REVERSE_YIELDING, initial_stress=problem.initial_stress),
+                     path, progress=False)
     assert ds.cutbacks.values.sum() == 0
     strain = ds.strain.values
     np.testing.assert_allclose(strain, np.broadcast_to(strain[:, :1], strain.shape), atol=1e-13)  # homogeneous
-    point = Elastoplastic(1, initial_stress=problem.initial_stress)
+    point = Elastoplastic(1, **REVERSE_YIELDING, initial_stress=problem.initial_stress)
     for k in range(strain.shape[0]):
         stress, D = point.evaluate(strain[k, :1])
         point.commit()

@@ -10,12 +10,12 @@ import pytest
 from granular_multiscale.config import validate_config
 from granular_multiscale.fem.newton import ConvergenceError, NewtonSettings
 from granular_multiscale.fem.triaxial import TriaxialProblem
-from granular_multiscale.materials import Elastoplastic, LinearElastic, make_material
+from granular_multiscale.materials import Elastoplastic, make_material
+from granular_multiscale.materials.elastoplastic import REVERSE_YIELDING
 from granular_multiscale.materials.wrappers import (
     MaterialWrapper,
     NoisyTangent,
     NonUniformFieldError,
-    TangentRepair,
     UniformField,
     eig_floor,
     non_spd_mask,
@@ -32,7 +32,8 @@ P0 = 1.0e5
 
 
 def elastoplastic(problem, n=None):
-    return Elastoplastic(n or problem.n_gauss_points, initial_stress=problem.initial_stress)
+    """The stiff set with a narrow cone (reverse yielding, sharper kinks): the harder case."""
+    return Elastoplastic(n or problem.n_gauss_points, **REVERSE_YIELDING, initial_stress=problem.initial_stress)
 
 
 # -- line search ----------------------------------------------------------------------------
@@ -247,8 +248,8 @@ def test_uniform_field_one_point_gives_the_all_points_answer():
     assert problem.n_material_points == 1 and problem.n_gauss_points == 128
     one = make_material("elastoplastic", problem.n_material_points, config)
     ds = problem.run(one, PATH2, progress=False)
-    every = TriaxialProblem(elements=(2, 2, 4), platen="smooth").run(elastoplastic(problem, 128), PATH2,
-                                                                      progress=False)
+    every = TriaxialProblem(elements=(2, 2, 4), platen="smooth").run(
+        make_material("elastoplastic", 128, config), PATH2, progress=False)
     np.testing.assert_allclose(ds.top_force.values, every.top_force.values, rtol=1e-9)
     np.testing.assert_allclose(ds.stress.values, every.stress.values, rtol=0, atol=1e-9 * P0)
     np.testing.assert_allclose(ds.tangent.values, every.tangent.values, rtol=1e-9, atol=1e-6)

@@ -2,9 +2,14 @@
 
 import numpy as np
 import pytest
+import yaml
 
 from granular_multiscale.config import validate_config
-from granular_multiscale.materials import Elastoplastic, LinearElastic, MaterialPointError, make_material
+from granular_multiscale.data import write_run
+from granular_multiscale.fem.triaxial import TriaxialProblem
+from granular_multiscale.materials import Elastoplastic, LinearElastic, MaterialPointError, calibration, make_material
+from granular_multiscale.materials.elastoplastic import DEFAULTS, REVERSE_YIELDING
+from granular_multiscale.paths import LoadPath
 from granular_multiscale.tensors import ENGINEERING_FACTOR, isotropic_elastic_tangent
 
 P0 = 1.0e5
@@ -24,28 +29,8 @@ def fd_tangent(material, strain, h=1e-8):
     return D
 
 
-def drained_triaxial(material, axial_path, p0=P0, before_commit=None):
-    """One point in a drained triaxial test: ε33 = −axial, σ11 = σ22 = −p0, no shear.
-    Lateral strains found by Newton with the material's own tangent. Returns q and ε_v per step.
-    ``before_commit(k)`` lets a test inspect the converged trial of step k."""
-    strain = np.zeros((1, 6))
-    q, ev = [], []
-    for k, ea in enumerate(axial_path):
-        strain[0, 2] = -ea
-        for _ in range(50):
-            stress, D = material.evaluate(strain)
-            r = stress[0, :2] + p0
-            if np.abs(r).max() < 1e-7 * p0:
-                break
-            strain[0, :2] -= np.linalg.solve(D[0, :2, :2], r)
-        else:
-            raise AssertionError("point driver did not converge")
-        if before_commit is not None:
-            before_commit(k)
-        material.commit()
-        q.append(-stress[0, 2] - p0)
-        ev.append(strain[0, :3].sum())
-    return np.array(q), np.array(ev)
+def drained_triaxial(material, axial_path, before_commit=None):
+    return calibration.drained_triaxial(material, axial_path, P0, before_commit=before_commit)
 
 
 def test_linear_elastic_stress_and_tangent():
@@ -68,21 +53,26 @@ def test_linear_elastic_rejects_bad_parameters():
 
 def test_elastoplastic_elastic_at_initial_state_and_small_strain():
     m = Elastoplastic(2, initial_stress=ISOTROPIC)
+    E, nu = DEFAULTS["youngs_modulus"], DEFAULTS["poisson_ratio"]
     stress, D = m.evaluate(np.zeros((2, 6)))
     np.testing.assert_allclose(stress, np.tile(ISOTROPIC, (2, 1)))
-    np.testing.assert_allclose(D[0], isotropic_elastic_tangent(5e7, 0.25), rtol=1e-12)
+    np.testing.assert_allclose(D[0], isotropic_elastic_tangent(E, nu), rtol=1e-12)
     # an isotropic compression never yields (the cone's axis is the hydrostat)
     stress, _ = m.evaluate(np.tile([-1e-3, -1e-3, -1e-3, 0, 0, 0], (2, 1)))
-    assert stress[0, :3] == pytest.approx(-P0 - 3 * (5e7 / 1.5) * 1e-3 * np.ones(3))
+    bulk = E / (3 * (1 - 2 * nu))
+    assert stress[0, :3] == pytest.approx(-P0 - 3 * bulk * 1e-3 * np.ones(3))
 
 
-def test_elastoplastic_consistent_tangent_matches_finite_differences():
+@pytest.mark.parametrize("params", [DEFAULTS, REVERSE_YIELDING], ids=["defaults", "reverse_yielding"])
+def test_elastoplastic_consistent_tangent_matches_finite_differences(params):
     rng = np.random.default_rng(1)
-    m = Elastoplastic(8, initial_stress=ISOTROPIC)
+    m = Elastoplastic(8, **params, initial_stress=ISOTROPIC)
     # a loaded, hardened state with back-stress, then general trial strains from it
-    m.evaluate(np.tile([2e-3, 1.5e-3, -8e-3, 4e-4, -3e-4, 2e-4], (8, 1)))
+    load = np.array([2e-3, 1.5e-3, -1.2e-2, 4e-4, -3e-4, 2e-4])
+    m.evaluate(np.tile(load, (8, 1)))
     m.commit()
-    strain = m.get_state()["strain"] + rng.normal(scale=1.5e-3, size=(8, 6))
+    # mostly further loading (plastic), some unloading (elastic)
+    strain = m.get_state()["strain"] + 0.1 * load + rng.normal(scale=1.5e-3, size=(8, 6))
     _, D = m.evaluate(strain)
     plastic = m._last_plastic
     assert plastic.sum() >= 4, "the check must cover plastic points"
@@ -125,17 +115,25 @@ def test_elastoplastic_state_round_trip():
     np.testing.assert_array_equal(a.evaluate(strain)[0], b.evaluate(strain)[0])
 
 
-def test_elastoplastic_triaxial_curve_looks_like_dense_sand():
-    """Defaults: tens of MPa initial stiffness, deviator of order 150–250 kPa at a few %,
-    contraction then dilation."""
+def test_elastoplastic_defaults_look_like_the_dem_specimen():
+    """Defaults (fitted to the default-scale FEM–DEM Path1, see calibration.py): about 16 MPa
+    initial axial stiffness, deviator ~140 kPa at 1 % and ~300 kPa at 4.5 %, contraction then
+    dilation, and Path2's unloading (0.9 % -> 0.3 %) stays in compression and elastic."""
     axial = np.linspace(0, 0.045, 91)
     q, ev = drained_triaxial(Elastoplastic(1, initial_stress=ISOTROPIC), axial)
     initial_modulus = q[1] / axial[1]
-    assert 2e7 < initial_modulus < 6e7
-    assert 100e3 < q[20] < 170e3  # 1 % axial strain
-    assert 180e3 < q[-1] < 250e3  # 4.5 %
+    assert 1.2e7 < initial_modulus < 2.2e7
+    assert 120e3 < q[20] < 170e3  # 1 % axial strain
+    assert 260e3 < q[-1] < 340e3  # 4.5 %
     assert np.all(np.diff(q) > 0)  # hardening, no softening (keeps the FE problem well posed)
-    assert ev.min() < 0 and ev[-1] > 0  # contraction first, dilation later (tension positive)
+    assert ev.min() < -0.005 and ev[-1] > ev.min() + 0.005  # contraction first, dilation later (tension positive)
+
+    m = Elastoplastic(1, initial_stress=ISOTROPIC)
+    plastic = []
+    path2 = np.concatenate([np.linspace(0, 0.009, 10), np.linspace(0.009, 0.003, 7)[1:]])
+    q2, _ = drained_triaxial(m, path2, before_commit=lambda k: plastic.append(bool(m._last_plastic[0])))
+    assert q2[-1] > 0.15 * q2[9]  # still in compression at 0.3 %
+    assert not any(plastic[10:]) and all(plastic[6:10])  # yields while loading, unloads elastically
 
 
 def test_hysteresis_loop_with_reverse_yielding():
@@ -143,7 +141,7 @@ def test_hysteresis_loop_with_reverse_yielding():
     unload = np.linspace(0.009, 0.003, 7)[1:]
     reload = np.linspace(0.003, 0.009, 7)[1:]
     axial = np.concatenate([load, unload, reload])
-    m = Elastoplastic(1, initial_stress=ISOTROPIC)
+    m = Elastoplastic(1, **REVERSE_YIELDING, initial_stress=ISOTROPIC)
     plastic_on_unloading = []
 
     def record_unloading_plasticity(k):
@@ -162,10 +160,23 @@ def test_hysteresis_loop_with_reverse_yielding():
     assert abs(np.sum(0.5 * (qe[cycle][1:] + qe[cycle][:-1]) * np.diff(axial[cycle]))) < 1e-6
 
 
+def test_calibration_recovers_the_parameters_of_a_known_curve():
+    """Fitting the model's own triaxial curve (load, unload, reload) from the defaults as the
+    start gives back the parameters that made it."""
+    truth = dict(youngs_modulus=2.2e7, poisson_ratio=0.15, friction=0.45, saturated_hardening=1.0e5,
+                 hardening_strain=0.005, kinematic_modulus=3.0e6)
+    axial = LoadPath("p", ((10, 0.01), (5, 0.004), (20, 0.03))).axial_strain()
+    q, ev = calibration.model_response(truth, axial, P0)
+    fit = calibration.fit_elastoplastic(axial, q, ev, P0)
+    for name, value in truth.items():
+        assert fit["params"][name] == pytest.approx(value, rel=2e-3), name
+    assert fit["rms_q_pa"] < 1.0 and fit["rms_volumetric"] < 1e-7
+
+
 def test_elastoplastic_apex_raises_material_point_error():
     m = Elastoplastic(3, initial_stress=ISOTROPIC)
     strain = np.zeros((3, 6))
-    strain[1] = [1e-2, 1e-2, 1e-2, 0, 0, 2e-3]  # strong volumetric extension: beyond the apex
+    strain[1] = [3e-2, 3e-2, 3e-2, 0, 0, 2e-3]  # strong volumetric extension: beyond the apex
     with pytest.raises(MaterialPointError, match=r"Gauss points \[1\]"):
         m.evaluate(strain)
 
@@ -186,3 +197,17 @@ def test_make_material_from_config():
     assert e.youngs_modulus == config["linear_elastic"]["youngs_modulus"]
     with pytest.raises(ValueError, match="unknown material-point set 'dm'"):
         make_material("dm", 4, config)
+
+
+def test_calibration_command_fits_a_run_file_of_the_model_itself(tmp_path, capsys):
+    """The command on a smooth-platen FE run of the defaults (a homogeneous specimen: every
+    Gauss point is the drained triaxial point) prints the defaults back and an RMS of ~0."""
+    problem = TriaxialProblem(size=(0.5, 0.5, 1.0), elements=(1, 1, 2), platen="smooth")
+    path = LoadPath("p", ((8, 0.008), (4, 0.003), (12, 0.02)))
+    run = problem.run(Elastoplastic(problem.n_gauss_points, initial_stress=problem.initial_stress), path,
+                      progress=False)
+    write_run(run, tmp_path / "run.h5")
+    calibration.main([str(tmp_path / "run.h5")])
+    printed = yaml.safe_load("\n".join(line for line in capsys.readouterr().out.splitlines() if not line.startswith("#")))
+    for name in calibration.FITTED:
+        assert printed["elastoplastic"][name] == pytest.approx(DEFAULTS[name], rel=2e-3), name

@@ -101,9 +101,10 @@ def test_training_learns_and_reports(data):
     ho_mae = np.mean(np.abs(model.predict(features(heldout_ds)) - targets(heldout_ds, "sigma")), axis=0)
     np.testing.assert_allclose(mae.heldout_mae_pa.values, ho_mae, rtol=1e-10)
     assert list(mae.target) == [f"stress_{c}" for c in ("11", "22", "33", "23", "13", "12")]
-    # better than predicting the mean of the training targets
+    # better than predicting the mean of the training targets; much better on the loaded σ33
     baseline = np.mean(np.abs(targets(heldout_ds, "sigma") - targets(train_ds, "sigma").mean(axis=0)), axis=0)
-    assert np.all(mae.heldout_mae_pa.values[:3] < 0.5 * baseline[:3])
+    assert np.all(mae.heldout_mae_pa.values[:3] < baseline[:3])
+    assert mae.heldout_mae_pa.values[2] < 0.25 * baseline[2]
 
 
 def test_model_file_is_self_sufficient(data, tmp_path):
