@@ -13,9 +13,13 @@ points (the 2×2×4 FEM–DEM networks stop at step 54 of 57). Networks trained 
 data (the elastoplastic reference: its paper-mesh runs take seconds) run the whole path:
 
     .venv/bin/snakemake -j2 --configfile config/paper.yaml --config reference_material=elastoplastic \
-        output_dir=results/paper_ep 'surrogate={epochs: 100}' -- results/paper_ep/models/nn_sigma.pt \
-        results/paper_ep/models/nn_tangent.pt
-    .venv/bin/python bench/bench_fem_ml.py --models results/paper_ep/models
+        output_dir=results/paper_ep 'surrogate={epochs: 100, history_variables: [phi1, phi2]}' -- \
+        results/paper_ep/models/nn_sigma.pt results/paper_ep/models/nn_tangent.pt \
+        results/paper_ep/fem_elastoplastic/path2.h5
+    .venv/bin/python bench/bench_fem_ml.py --models results/paper_ep/models \
+        --reference results/paper_ep/fem_elastoplastic/path2.h5
+
+(--reference: the top-force error against that run, per load phase, in % of its peak.)
 
     .venv/bin/python bench/bench_fem_ml.py [--models results/models] [--train] [--epochs 150]
                                            [--elements 5 5 10] [--json out.json]
@@ -34,7 +38,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from granular_multiscale.analysis.metrics import curve_errors
 from granular_multiscale.config import load_config
+from granular_multiscale.data import read_run
 from granular_multiscale.fem.newton import ConvergenceError
 from granular_multiscale.paths import load_paths_from_config
 from granular_multiscale.surrogate.fem_ml import run_fem_ml
@@ -59,6 +65,7 @@ def main() -> None:
     parser.add_argument("--elements", type=int, nargs=3, default=[5, 5, 10])
     parser.add_argument("--path", default="path2",
                         help="load path of the config, or 'monotonic': the same 57 steps loading straight to 4.5 %%")
+    parser.add_argument("--reference", default=None, help="reference run of the same mesh and path: print the top-force error")
     parser.add_argument("--json", default=None, help="write the numbers to this file")
     args = parser.parse_args()
 
@@ -77,6 +84,7 @@ def main() -> None:
     if args.path == "monotonic":  # same step count as Path2, without its reversal (timing only)
         paper["load_paths"] = dict(config["load_paths"], monotonic={"segments": [[57, 0.045]]})
     n_steps = load_paths_from_config(paper)[args.path].n_steps
+    reference = read_run(args.reference) if args.reference else None
     results = {}
     for method in ("nn", "autodiff"):
         t0, c0 = time.perf_counter(), time.process_time()
@@ -101,6 +109,9 @@ def main() -> None:
             "steps": n_steps,
             "steps_done": int(ds.sizes["step"]) - 1,
         }
+        if reference is not None:
+            errors = curve_errors(reference, ds).query("quantity == 'top_force'")
+            results[method]["top_force_error_pct_of_peak"] = dict(zip(errors["phase"], errors["max_error_percent_of_peak"]))
     print(f"FEM–ML {args.path}, mesh {'x'.join(map(str, args.elements))} "
           f"({results['nn']['gauss_points']} Gauss points, {n_steps} steps), torch threads "
           f"{torch.get_num_threads()}")
@@ -112,6 +123,9 @@ def main() -> None:
               f"{r['max_iterations_per_step']:8d} {r['cutbacks']:8d}")
         if r["stopped"]:
             print(f"          stopped: {r['stopped'][:160]}")
+        if "top_force_error_pct_of_peak" in r:
+            print("          top-force error, max % of peak: " + ", ".join(
+                f"{phase} {value:.2f}" for phase, value in r["top_force_error_pct_of_peak"].items()))
     print(f"goal: under 10 s (the paper's FEM–ML run took 0.2 h); load average now {os.getloadavg()[0]:.1f} on "
           f"{os.cpu_count()} cores (CPU s is what the run itself used)")
     if args.json:
