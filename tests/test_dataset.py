@@ -14,6 +14,7 @@ from granular_multiscale.surrogate.dataset import (
     DatasetError,
     build_dataset,
     features,
+    range_extremes,
     read_dataset,
     scaling,
     split_gauss_points,
@@ -47,6 +48,35 @@ def test_split_is_seeded_disjoint_and_complete():
     assert (t.size, h.size) == (1, 1)
     with pytest.raises(ValueError, match="train_fraction"):
         split_gauss_points(10, 1.0, seed=0)
+
+
+def test_range_extremes_and_a_split_that_keeps_them_in_training():
+    values = np.zeros((3, 6, 2))  # [step, gp, feature]
+    values[1, 4, 0], values[2, 1, 0] = 5.0, -2.0  # feature 0: max at gp 4, min at gp 1
+    values[0, 2, 1], values[1, 3, 1] = 1.0, -1.0  # feature 1: max at gp 2, min at gp 3
+    np.testing.assert_array_equal(range_extremes(values), [1, 2, 3, 4])
+    for seed in range(5):
+        train, heldout = split_gauss_points(6, 0.7, seed, always_train=[1, 2, 3, 4])
+        assert set(train) >= {1, 2, 3, 4} and train.size == 4 and heldout.size == 2
+        np.testing.assert_array_equal(np.sort(np.concatenate([train, heldout])), np.arange(6))
+    with pytest.raises(DatasetError, match="5 Gauss points must train .* room for 4 of 6"):
+        split_gauss_points(6, 0.7, 0, always_train=[0, 1, 2, 3, 4])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_cover_range_split_scales_over_the_whole_specimen(run, seed):
+    """With split cover_range the training min–max equals that of all points; a random split
+    of the same seed may be narrower, never wider."""
+    train, heldout = build_dataset(run, 0.75, seed=seed, split="cover_range")
+    everything = np.concatenate([run.strain.values, history_from_sequence(run.strain.values)], axis=-1)
+    np.testing.assert_array_equal(train.feature_min.values, everything.min(axis=(0, 1)))
+    np.testing.assert_array_equal(train.feature_max.values, everything.max(axis=(0, 1)))
+    assert set(train.attrs["range_extreme_gp"]) <= set(train.gp.values) and train.attrs["split_method"] == "cover_range"
+    assert (train.sizes["gp"], heldout.sizes["gp"]) == (15, 5)
+    drawn, _ = build_dataset(run, 0.75, seed=seed)
+    assert np.all(drawn.feature_max.values - drawn.feature_min.values <= train.feature_max.values - train.feature_min.values)
+    with pytest.raises(ValueError, match="surrogate.split"):
+        build_dataset(run, 0.75, seed=seed, split="stratified")
 
 
 def test_dataset_holds_the_run_split_by_gauss_point(run):

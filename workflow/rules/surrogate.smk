@@ -58,6 +58,7 @@ rule dataset:
     params:
         seed=config["seed"],
         train_fraction=SURROGATE["train_fraction"],
+        split=SURROGATE["split"],
     threads: 1
     script:
         "../../scripts/surrogate_dataset.py"

@@ -71,15 +71,33 @@ def target_names(kind: str) -> tuple[str, ...]:
     raise ValueError(f"target kind must be one of {TARGET_KINDS}, got {kind!r}")
 
 
-def split_gauss_points(n_gp: int, train_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Seeded random split of Gauss points 0..n_gp-1 into sorted (train, held-out) index arrays."""
+SPLITS = ("random", "cover_range")
+
+
+def range_extremes(features: np.ndarray) -> np.ndarray:
+    """Gauss points at which some feature of ``features[step, gp, feature]`` reaches its
+    minimum or maximum over all steps and points (sorted, unique)."""
+    per_gp = features.reshape(-1, features.shape[1], features.shape[2])
+    lowest, highest = per_gp.min(axis=0).argmin(axis=0), per_gp.max(axis=0).argmax(axis=0)
+    return np.unique(np.concatenate([lowest, highest]))
+
+
+def split_gauss_points(n_gp: int, train_fraction: float, seed: int, always_train=()) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded random split of Gauss points 0..n_gp-1 into sorted (train, held-out) index arrays;
+    the points in ``always_train`` are training points, the rest of the training set is drawn."""
     if not 0.0 < train_fraction < 1.0:
         raise ValueError(f"surrogate.train_fraction must be in (0, 1), got {train_fraction}")
     if n_gp < 2:
         raise DatasetError(f"need at least 2 Gauss points to split into train and held-out, got {n_gp}")
     n_train = min(max(int(round(train_fraction * n_gp)), 1), n_gp - 1)
+    forced = np.unique(np.asarray(always_train, dtype=np.int64))
+    if forced.size > n_train:
+        raise DatasetError(f"{forced.size} Gauss points must train (they span the feature range) but "
+                           f"surrogate.train_fraction leaves room for {n_train} of {n_gp}")
     order = np.random.default_rng(seed).permutation(n_gp)
-    return np.sort(order[:n_train]), np.sort(order[n_train:])
+    rest = order[~np.isin(order, forced)]
+    train = np.concatenate([forced, rest[: n_train - forced.size]])
+    return np.sort(train), np.sort(rest[n_train - forced.size:])
 
 
 def minmax(values: np.ndarray, axis) -> tuple[np.ndarray, np.ndarray]:
@@ -113,8 +131,15 @@ def _check_contract(run: xr.Dataset, source: str) -> None:
         _check_finite(run, name, source)
 
 
-def build_dataset(run: xr.Dataset, train_fraction: float, seed: int, source: str = "reference run") -> tuple[xr.Dataset, xr.Dataset]:
-    """Reference run (data contract) -> (train, held-out) datasets with the train-fitted scaling."""
+def build_dataset(run: xr.Dataset, train_fraction: float, seed: int, source: str = "reference run",
+                  split: str = "random") -> tuple[xr.Dataset, xr.Dataset]:
+    """Reference run (data contract) -> (train, held-out) datasets with the train-fitted scaling.
+
+    split: 'random' draws the training points (the paper); 'cover_range' first puts every point
+    at which a feature reaches its minimum or maximum into the training set, so the min–max
+    scaling spans what the specimen does; the rest is drawn as before."""
+    if split not in SPLITS:
+        raise ValueError(f"surrogate.split must be one of {SPLITS}, got {split!r}")
     _check_contract(run, source)
     run = run.transpose("step", "gp", ...)
     strain = run["strain"].values
@@ -122,10 +147,11 @@ def build_dataset(run: xr.Dataset, train_fraction: float, seed: int, source: str
     stress = run["stress"].values
     tangent = run["tangent"].values
     n_gp = run.sizes["gp"]
-    train_idx, heldout_idx = split_gauss_points(n_gp, train_fraction, seed)
+    features = np.concatenate([strain, history], axis=-1)
+    always_train = range_extremes(features) if split == "cover_range" else ()
+    train_idx, heldout_idx = split_gauss_points(n_gp, train_fraction, seed, always_train)
     gp_ids = run.gp.values
 
-    features = np.concatenate([strain, history], axis=-1)
     f_min, f_max = minmax(features[:, train_idx].reshape(-1, len(FEATURES)), axis=0)
     s_min, s_max = minmax(stress[:, train_idx].reshape(-1, 6), axis=0)
     t_min, t_max = minmax(tangent[:, train_idx].reshape(-1, 21), axis=0)
@@ -161,6 +187,8 @@ def build_dataset(run: xr.Dataset, train_fraction: float, seed: int, source: str
         "source_method": str(run.attrs.get("method", "")),
         "seed": int(seed),
         "train_fraction": float(train_fraction),
+        "split_method": split,
+        "range_extreme_gp": gp_ids[np.asarray(always_train, dtype=np.int64)].astype(np.int64),
         "train_gp": gp_ids[train_idx].astype(np.int64),
         "heldout_gp": gp_ids[heldout_idx].astype(np.int64),
         "scaling": "min–max to (0, 1) fitted on the training Gauss points: x_scaled = (x - min) / (max - min)",
@@ -235,6 +263,8 @@ def summary(train: xr.Dataset, heldout: xr.Dataset) -> str:
         {
             "train_gp": int(train.sizes["gp"]),
             "heldout_gp": int(heldout.sizes["gp"]),
+            "split_method": str(train.attrs.get("split_method", "random")),
+            "range_extreme_gp": int(len(np.atleast_1d(train.attrs.get("range_extreme_gp", [])))),
             "steps": int(train.sizes["step"]),
             "train_samples": int(train.sizes["gp"] * train.sizes["step"]),
             "heldout_samples": int(heldout.sizes["gp"] * heldout.sizes["step"]),
