@@ -77,8 +77,7 @@ SPLITS = ("random", "cover_range")
 def range_extremes(features: np.ndarray) -> np.ndarray:
     """Gauss points at which some feature of ``features[step, gp, feature]`` reaches its
     minimum or maximum over all steps and points (sorted, unique)."""
-    per_gp = features.reshape(-1, features.shape[1], features.shape[2])
-    lowest, highest = per_gp.min(axis=0).argmin(axis=0), per_gp.max(axis=0).argmax(axis=0)
+    lowest, highest = features.min(axis=0).argmin(axis=0), features.max(axis=0).argmax(axis=0)
     return np.unique(np.concatenate([lowest, highest]))
 
 
