@@ -78,7 +78,8 @@ def train_elastoplastic_models(config, elements, folder: Path, logger=None, **se
     source = TriaxialProblem.from_config(dict(config, specimen=dict(config["specimen"], elements=list(elements))))
     reference = source.run(Elastoplastic(source.n_gauss_points, initial_stress=source.initial_stress),
                            load_paths_from_config(config)[config["training_path"]], progress=False)
-    train_ds, heldout_ds = build_dataset(reference, config["surrogate"]["train_fraction"], config["seed"])
+    train_ds, heldout_ds = build_dataset(reference, config["surrogate"]["train_fraction"], config["seed"],
+                                         split=config["surrogate"]["split"])
     files = []
     for kind in ("sigma", "tangent"):
         model, _, _ = train(train_ds, heldout_ds, kind, dict(config["surrogate"], **settings), config["seed"],

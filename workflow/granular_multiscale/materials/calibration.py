@@ -75,13 +75,20 @@ def model_response(params: dict, axial_strain, confining_pressure: float):
 
 
 def _to_params(x: np.ndarray) -> dict:
-    params = {name: float(np.exp(value)) for name, value in zip(FITTED, x)}
-    params["poisson_ratio"] = float(x[FITTED.index("poisson_ratio")])
-    return params
+    return {n: float(v) if n == "poisson_ratio" else float(np.exp(v)) for n, v in zip(FITTED, x)}
 
 
 def _to_vector(params: dict) -> np.ndarray:
     return np.array([params[n] if n == "poisson_ratio" else np.log(params[n]) for n in FITTED])
+
+
+def rms_errors(params: dict, axial_strain, q, volumetric, confining_pressure: float) -> dict:
+    """RMS difference between the model with ``params`` and a triaxial curve (q in Pa, ε_v)."""
+    q_m, ev_m = model_response(params, axial_strain, confining_pressure)
+    return {
+        "rms_q_pa": float(np.sqrt(np.mean((q_m - np.asarray(q)) ** 2))),
+        "rms_volumetric": float(np.sqrt(np.mean((ev_m - np.asarray(volumetric)) ** 2))),
+    }
 
 
 def fit_elastoplastic(axial_strain, q, volumetric, confining_pressure: float, start: dict | None = None) -> dict:
@@ -102,21 +109,11 @@ def fit_elastoplastic(axial_strain, q, volumetric, confining_pressure: float, st
     lower[FITTED.index("poisson_ratio")], upper[FITTED.index("poisson_ratio")] = 0.0, 0.49
     solution = least_squares(residual, np.clip(x0, lower + 1e-9, upper - 1e-9), bounds=(lower, upper), diff_step=1e-3)
     params = _to_params(solution.x)
-    q_m, ev_m = model_response(params, axial_strain, confining_pressure)
-    return {
-        "params": params,
-        "rms_q_pa": float(np.sqrt(np.mean((q_m - q) ** 2))),
-        "rms_volumetric": float(np.sqrt(np.mean((ev_m - volumetric) ** 2))),
-    }
+    return {"params": params, **rms_errors(params, axial_strain, q, volumetric, confining_pressure)}
 
 
-def _rms_against(path: Path, params: dict, confining_pressure: float) -> str:
-    axial, q, volumetric = mean_triaxial_response(read_run(path))
-    q_m, ev_m = model_response(params, axial, confining_pressure)
-    return (
-        f"{path}: RMS q {np.sqrt(np.mean((q_m - q) ** 2)) / 1e3:.2f} kPa, "
-        f"RMS ε_v {100 * np.sqrt(np.mean((ev_m - volumetric) ** 2)):.3f} %"
-    )
+def _describe(path: Path, errors: dict) -> str:
+    return f"# {path}: RMS q {errors['rms_q_pa'] / 1e3:.2f} kPa, RMS ε_v {100 * errors['rms_volumetric']:.3f} %"
 
 
 def main(argv=None) -> None:
@@ -125,14 +122,16 @@ def main(argv=None) -> None:
     parser.add_argument("--check", type=Path, action="append", default=[], help="another run file to report the fit's error on")
     args = parser.parse_args(argv)
     run = read_run(args.run)
+    if "confining_pressure_Pa" not in run.attrs:
+        raise SystemExit(f"{args.run}: attribute 'confining_pressure_Pa' missing (data contract: a triaxial run)")
     pressure = float(run.attrs["confining_pressure_Pa"])
-    axial, q, volumetric = mean_triaxial_response(run)
-    fit = fit_elastoplastic(axial, q, volumetric, pressure)
+    fit = fit_elastoplastic(*mean_triaxial_response(run), pressure)
     print("elastoplastic:")
     for name in FITTED:
         print(f"  {name}: {fit['params'][name]:.4g}")
-    for path in [args.run, *args.check]:
-        print("#", _rms_against(path, fit["params"], pressure))
+    print(_describe(args.run, fit))
+    for path in args.check:
+        print(_describe(path, rms_errors(fit["params"], *mean_triaxial_response(read_run(path)), pressure)))
 
 
 if __name__ == "__main__":
