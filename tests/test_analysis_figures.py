@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from analysis_fixtures import write_analysis_inputs
-from granular_multiscale.analysis import products, selection
+from granular_multiscale.analysis import figures, products, selection
 from granular_multiscale.config import load_config
 
 DPI = 50
@@ -171,3 +171,17 @@ def test_a_complete_run_with_fewer_steps_is_another_path(runs, tmp_path):
         products.make_accuracy_table({REF: runs["files"][REF], ML: str(tmp_path / "short.h5")},
                                      runs["out"] / "dataset/train.h5", runs["out"] / "dataset/heldout.h5",
                                      tmp_path / "a.csv", tmp_path / "a.html", path_label="Path2")
+
+
+def test_training_curves_draw_every_ensemble_member(monkeypatch, tmp_path):
+    """An ensemble's loss table (column member) gives one curve pair per member, one legend entry pair."""
+    epochs = np.arange(1, 11)
+    table = pd.concat([pd.DataFrame({"epoch": epochs, "train_loss": (m + 1) / epochs, "heldout_loss": (m + 2) / epochs,
+                                     "member": m}) for m in range(3)])
+    monkeypatch.setattr(figures, "save_figure", lambda fig, out, dpi: fig)  # keep the figure to inspect it
+    fig = figures.training_curves({"NNσ|with history": table}, tmp_path / "x.png")
+    ax = fig.axes[0]
+    assert len(ax.lines) == 6
+    np.testing.assert_array_equal(ax.lines[4].get_xdata(), epochs)  # members are not chained end to end
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == [
+        "training (with history, 3 members)", "held out (with history, 3 members)"]

@@ -190,6 +190,25 @@ def test_forward_mode_tangent_equals_torch_func_jacobian(data, activation):
     np.testing.assert_allclose(D, jac.numpy() / ENGINEERING_FACTOR, rtol=1e-9, atol=1e-9 * np.abs(D).max())
 
 
+def test_ensemble_autodiff_tangent_matches_finite_differences(data):
+    """The ensemble's stress is its members' mean; its tangent is the exact Jacobian of that mean."""
+    from granular_multiscale.surrogate.models import EnsembleMLP
+
+    members = [untrained(data, "sigma", seed=s) for s in (7, 8, 9)]
+    ensemble = untrained(data, "sigma", seed=7)
+    ensemble.network = EnsembleMLP([m.network for m in members]).to(torch.float64)
+    strain_c, acc_c, trial = state_with_history(5, seed=3)
+    stresses = []
+    for model in members + [ensemble]:
+        mat = SurrogateMaterial(5, model, tangent="autodiff", anchor_initial_state=False)
+        mat.set_state({"strain": strain_c, "accumulated": acc_c})
+        stresses.append(mat.evaluate(trial)[0])
+    np.testing.assert_allclose(stresses[-1], np.mean(stresses[:-1], axis=0), rtol=1e-12)
+    _, D = mat.evaluate(trial)
+    fd = finite_difference_tangent(mat, trial)
+    np.testing.assert_allclose(D, fd, atol=1e-6 * np.abs(fd).max())
+
+
 def test_autodiff_tangent_finite_at_fresh_state(models):
     sigma, _ = models
     mat = SurrogateMaterial(4, sigma, tangent="autodiff")

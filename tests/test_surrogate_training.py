@@ -8,7 +8,7 @@ from granular_multiscale.config import CONFIG_DIR, load_config, validate_config
 from granular_multiscale.materials.elastoplastic import Elastoplastic
 from granular_multiscale.paths import load_paths_from_config
 from granular_multiscale.surrogate.dataset import FEATURES, STRAIN_FEATURES, TANGENT_TARGETS, build_dataset, features, targets
-from granular_multiscale.surrogate.models import ModelFileError, SurrogateModel
+from granular_multiscale.surrogate.models import EnsembleMLP, ModelFileError, SurrogateModel
 from granular_multiscale.surrogate.training import TrainingError, model_seed, plot_losses, train
 
 CONFIG = validate_config({"reference_material": "elastoplastic"})
@@ -92,7 +92,7 @@ def test_jacobian_loss_teaches_the_tangent(data):
 
 def test_training_learns_and_reports(data):
     model, losses, mae = train(*data, "sigma", dict(FAST, epochs=30), seed=0)
-    assert list(losses.columns) == ["epoch", "train_loss", "heldout_loss", "elapsed_s"]
+    assert list(losses.columns) == ["epoch", "train_loss", "heldout_loss", "elapsed_s", "member"]
     assert list(losses.epoch) == list(range(1, 31))
     assert losses.train_loss.iloc[-1] < 0.4 * losses.train_loss.iloc[0]
     assert losses.heldout_loss.iloc[-1] < 0.4 * losses.heldout_loss.iloc[0]
@@ -124,6 +124,49 @@ def test_model_file_is_self_sufficient(data, tmp_path):
     assert back.network.net[0].weight.dtype == torch.float64
 
 
+def test_ensemble_is_the_mean_of_its_members(data, tmp_path):
+    """K networks from K seeds; member 0 is the single network of the same seed; the model predicts
+    their mean, whose MAE cannot exceed the members' mean MAE (triangle inequality), and a
+    reloaded file predicts the same."""
+    single, _, _ = train(*data, "sigma", FAST, seed=3)
+    ensemble, losses, mae = train(*data, "sigma", dict(FAST, ensemble_size=3), seed=3)
+    assert isinstance(ensemble.network, EnsembleMLP) and ensemble.ensemble_size == 3
+    for (name, pa), pb in zip(single.network.state_dict().items(), ensemble.members[0].state_dict().values()):
+        assert torch.equal(pa, pb), name
+    assert not torch.equal(ensemble.members[1].net[0].weight, ensemble.members[2].net[0].weight)
+    assert len(set(ensemble.training["member_seeds"])) == 3 and ensemble.training["seed"] == single.training["seed"]
+    assert losses.groupby("member").epoch.max().tolist() == [FAST["epochs"]] * 3
+
+    x, y = features(data[1]), targets(data[1], "sigma")
+    with torch.no_grad():
+        per_member = np.stack([m(torch.as_tensor(x, dtype=torch.float32)).double().numpy() for m in ensemble.members])
+    np.testing.assert_allclose(ensemble.predict(x), per_member.mean(axis=0), rtol=1e-5, atol=1e-6 * np.abs(y).max())
+    member_mae = np.abs(per_member - y).mean(axis=1)  # [member, target]
+    assert np.all(mae.heldout_mae_pa.values <= member_mae.mean(axis=0) * (1 + 1e-5))
+
+    ensemble.save(tmp_path / "ens.pt")
+    back = SurrogateModel.load(tmp_path / "ens.pt")
+    assert back.ensemble_size == 3 and back.training["member_seeds"] == ensemble.training["member_seeds"]
+    np.testing.assert_allclose(back.predict(x), ensemble.predict(x), rtol=1e-4, atol=1e-4 * np.abs(y).max())
+    with pytest.raises(ValueError, match="member 1 has another scaling"):
+        other = SurrogateModel.create("sigma", True, {"x_min": np.zeros(9), "x_max": np.ones(9),
+                                                      "y_min": np.zeros(6), "y_max": np.ones(6)}, FAST)
+        EnsembleMLP([ensemble.members[0], other.network])
+
+
+def test_format_1_model_files_still_load(data, tmp_path):
+    """Files written before ensembles (format 1: one network under "state_dict") load unchanged."""
+    model, _, _ = train(*data, "sigma", FAST, seed=2)
+    model.save(tmp_path / "new.pt")
+    payload = torch.load(tmp_path / "new.pt", weights_only=True)
+    payload["format"] = "granular_multiscale.surrogate/1"
+    payload["state_dict"] = payload.pop("members")[0]
+    torch.save(payload, tmp_path / "old.pt")
+    x = features(data[1])
+    np.testing.assert_array_equal(SurrogateModel.load(tmp_path / "old.pt").predict(x),
+                                  SurrogateModel.load(tmp_path / "new.pt").predict(x))
+
+
 def test_model_file_errors(tmp_path):
     with pytest.raises(ModelFileError, match="not found"):
         SurrogateModel.load(tmp_path / "none.pt")
@@ -145,6 +188,8 @@ def test_bad_settings_are_named(data):
             train(*data, "sigma", dict(FAST, device="cuda"), seed=0)
     with pytest.raises(TrainingError, match="loss is not finite at epoch"):
         train(*data, "sigma", dict(FAST, learning_rate=1e30, loss="mse", epochs=3), seed=0)
+    with pytest.raises(TrainingError, match="surrogate.ensemble_size"):
+        train(*data, "sigma", dict(FAST, ensemble_size=0), seed=0)
 
 
 def test_loss_figure(data, tmp_path):

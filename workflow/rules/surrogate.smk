@@ -23,7 +23,7 @@ NETWORKS = {
 SURROGATE_THREADS = SURROGATE["torch_threads"]
 # the keys of `surrogate` that change a trained network (only these re-run the training rules)
 TRAINING_KEYS = [
-    "hidden_layers", "hidden_units", "activation", "batch_size", "learning_rate", "epochs", "lr_schedule",
+    "hidden_layers", "hidden_units", "activation", "batch_size", "learning_rate", "epochs", "ensemble_size", "lr_schedule",
     "final_learning_rate", "jacobian_loss_weight", "loss", "log_every", "history_variables", "device",
     "torch_threads",
 ]

@@ -221,10 +221,12 @@ def training_curves(
     curves: Mapping[str, pd.DataFrame],
     out: str | Path,
     *,
+    loss_name: str = "MAE",
     figsize=(10.0, 4.2),
     dpi: int = 120,
 ) -> Path:
-    """One panel per network; each curve table has columns epoch, train_loss, heldout_loss.
+    """One panel per network; each curve table has columns epoch, train_loss, heldout_loss and,
+    for an ensemble, member (one curve per member, the first drawn solid, the others faint).
 
     ``curves`` keys are 'panel title|series label' (e.g. 'NNσ|with history'); series in the
     same panel share its axes.
@@ -241,12 +243,20 @@ def training_curves(
     for ax, (panel, series_list) in zip(axes[0], panels.items()):
         for k, (series, table) in enumerate(series_list):
             colour = style(k + 1)["color"]
+            members = list(table.groupby("member")) if "member" in table else [(0, table)]
+            if len(members) > 1:
+                series = f"{series}, " if series else ""
+                series += f"{len(members)} members"
             suffix = f" ({series})" if series else ""
-            ax.plot(table["epoch"], table["train_loss"], color=colour, linestyle="-", label=f"training{suffix}")
-            ax.plot(table["epoch"], table["heldout_loss"], color=colour, linestyle="--", label=f"held out{suffix}")
+            for m, (_, rows) in enumerate(members):
+                alpha = 0.35 if m else 1.0  # members after the first: faint and unlabelled
+                ax.plot(rows["epoch"], rows["train_loss"], color=colour, linestyle="-", alpha=alpha,
+                        label=None if m else f"training{suffix}")
+                ax.plot(rows["epoch"], rows["heldout_loss"], color=colour, linestyle="--", alpha=alpha,
+                        label=None if m else f"held out{suffix}")
         ax.set_yscale("log")
         ax.set_xlabel("epoch")
-        ax.set_ylabel("MAE loss (scaled targets)")
+        ax.set_ylabel(f"{loss_name} loss (scaled targets)")
         ax.set_title(panel)
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)

@@ -4,6 +4,9 @@ A :class:`ScaledMLP` is a plain MLP (paper Table 3: 4 hidden layers × 20 units)
 its min–max scaling, kept as buffers: ``forward`` takes features and returns targets in
 physical units (Pa), so it can be differentiated end to end (autodiff tangent).
 
+An :class:`EnsembleMLP` (config ``surrogate.ensemble_size`` > 1) is the mean of K such networks
+trained from different seeds on the same data; it is used exactly like one.
+
 A :class:`SurrogateModel` adds what makes the saved file self-sufficient: which targets it
 predicts, the feature and target names, the scaling, the config and the training summary.
 ``SurrogateModel.load(path)`` needs nothing else.
@@ -23,7 +26,9 @@ from ..atomic import atomic_path
 from ..history import HIST, accumulate_torch, history_variables_torch
 from .dataset import STRAIN_FEATURES, feature_names, history_selection, target_names
 
-FORMAT = "granular_multiscale.surrogate/1"
+FORMAT = "granular_multiscale.surrogate/2"
+# format 1 held one network's weights under "state_dict"; format 2 a list under "members"
+READABLE_FORMATS = ("granular_multiscale.surrogate/1", FORMAT)
 ACTIVATIONS = {
     "tanh": nn.Tanh,
     "relu": nn.ReLU,
@@ -165,6 +170,44 @@ class ScaledMLP(nn.Module):
         return self.unscale_y(h), t * self.y_scale[None, :, None]
 
 
+class EnsembleMLP(nn.Module):
+    """The mean of K ScaledMLP members trained on the same data from different seeds.
+
+    The members share the min–max scaling (one training set), so the ensemble is used exactly
+    like one ScaledMLP: the stress is the mean of the members' stresses and, since the mean is
+    linear, its exact Jacobian is the mean of theirs. Averaging removes most of the error that
+    depends on the seed of one network (docs/surrogate.md measures it on the FEM–ML curves)."""
+
+    def __init__(self, members: list[ScaledMLP]):
+        super().__init__()
+        if len(members) < 2:
+            raise ValueError(f"an ensemble needs at least 2 members, got {len(members)}")
+        first = members[0]
+        for k, member in enumerate(members[1:], start=1):
+            for name in ("x_min", "x_max", "y_min", "y_max"):
+                if not np.array_equal(member.exact_scaling[name], first.exact_scaling[name]):
+                    raise ValueError(f"ensemble member {k} has another scaling ({name}) than member 0")
+        self.members = nn.ModuleList(members)
+
+    # what the members share: the ensemble answers these with member 0's
+    SHARED = ("x_min", "x_max", "y_min", "y_max", "x_scale", "y_scale", "exact_scaling", "scale_x", "scale_y", "unscale_y")
+
+    def __getattr__(self, name):
+        if name in EnsembleMLP.SHARED:
+            return getattr(self.members[0], name)
+        return super().__getattr__(name)
+
+    def forward_scaled(self, x_scaled: torch.Tensor) -> torch.Tensor:
+        return torch.stack([m.forward_scaled(x_scaled) for m in self.members]).mean(dim=0)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.unscale_y(self.forward_scaled(self.scale_x(x)))
+
+    def forward_with_tangents(self, x: torch.Tensor, dx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        values, slopes = zip(*(m.forward_with_tangents(x, dx) for m in self.members))
+        return torch.stack(values).mean(dim=0), torch.stack(slopes).mean(dim=0)
+
+
 @dataclass
 class SurrogateModel:
     network: ScaledMLP
@@ -196,6 +239,15 @@ class SurrogateModel:
     def history(self) -> tuple[str, ...]:
         """The history variables among the features (empty for the ablation)."""
         return tuple(self.feature_names[len(STRAIN_FEATURES):])
+
+    @property
+    def members(self) -> list[ScaledMLP]:
+        """The networks whose mean the model predicts: one, or the ensemble's K."""
+        return list(self.network.members) if isinstance(self.network, EnsembleMLP) else [self.network]
+
+    @property
+    def ensemble_size(self) -> int:
+        return len(self.members)
 
     @property
     def use_history(self) -> bool:
@@ -235,7 +287,8 @@ class SurrogateModel:
             "target_names": list(self.target_names),
             "architecture": dict(self.architecture),
             "scaling": {k: v.tolist() for k, v in net.exact_scaling.items()},
-            "state_dict": {k: v.detach().cpu().float() for k, v in net.state_dict().items()},
+            # one state dict per member; a single network is a list of one
+            "members": [{k: v.detach().cpu().float() for k, v in m.state_dict().items()} for m in self.members],
             "config": json.dumps(self.config),
             "training": json.dumps(self.training),
             "initial_state": json.dumps(self.initial_state),
@@ -253,7 +306,7 @@ class SurrogateModel:
             payload = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as e:  # torch raises several types for a damaged file
             raise ModelFileError(f"{path}: not a readable model file ({e})") from None
-        if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        if not isinstance(payload, dict) or payload.get("format") not in READABLE_FORMATS:
             raise ModelFileError(f"{path}: not a surrogate model file (expected format {FORMAT})")
         names = tuple(payload.get("feature_names", ()))
         history = names[len(STRAIN_FEATURES):]
@@ -261,19 +314,9 @@ class SurrogateModel:
             raise ModelFileError(f"{path}: inputs {list(names)} are not features this project computes "
                                  f"(the six strains {list(STRAIN_FEATURES)}, then history variables from {list(HIST)})")
         arch = payload["architecture"]
-        net = ScaledMLP(**arch, **payload["scaling"])
-        # x_scale/y_scale are derived from the min/max (recomputed below): not needed in the file
-        missing, unexpected = net.load_state_dict(payload["state_dict"], strict=False)
-        if unexpected or set(missing) - {"x_scale", "y_scale"}:
-            raise ModelFileError(f"{path}: weights do not fit the architecture (missing {missing}, unexpected {unexpected})")
-        net = net.to(dtype)
-        # reload the scaling buffers at full precision (they were created in float32)
-        for k, v in net.exact_scaling.items():
-            getattr(net, k).copy_(torch.as_tensor(v, dtype=dtype))
-        net.x_scale.copy_(torch.as_tensor(scale_of(net.exact_scaling["x_min"], net.exact_scaling["x_max"],
-                                                   column_groups(arch["n_in"], 6)), dtype=dtype))
-        net.y_scale.copy_(torch.as_tensor(scale_of(net.exact_scaling["y_min"], net.exact_scaling["y_max"],
-                                                   column_groups(arch["n_out"], arch["n_out"])), dtype=dtype))
+        states = payload["members"] if payload["format"] == FORMAT else [payload["state_dict"]]
+        members = [_load_member(path, k, arch, payload["scaling"], state, dtype) for k, state in enumerate(states)]
+        net = members[0] if len(members) == 1 else EnsembleMLP(members)
         net.eval()
         net.requires_grad_(False)
         return cls(
@@ -286,3 +329,22 @@ class SurrogateModel:
             json.loads(payload["training"]),
             json.loads(payload.get("initial_state", "{}")),
         )
+
+
+def _load_member(path: Path, index: int, arch: dict, scaling: dict, state: dict, dtype: torch.dtype) -> ScaledMLP:
+    """One network of a model file, its scaling buffers at full precision."""
+    net = ScaledMLP(**arch, **scaling)
+    # x_scale/y_scale are derived from the min/max (recomputed below): not needed in the file
+    missing, unexpected = net.load_state_dict(state, strict=False)
+    if unexpected or set(missing) - {"x_scale", "y_scale"}:
+        raise ModelFileError(f"{path}: weights of network {index} do not fit the architecture "
+                             f"(missing {missing}, unexpected {unexpected})")
+    net = net.to(dtype)
+    # reload the scaling buffers at full precision (they were created in float32)
+    for k, v in net.exact_scaling.items():
+        getattr(net, k).copy_(torch.as_tensor(v, dtype=dtype))
+    net.x_scale.copy_(torch.as_tensor(scale_of(net.exact_scaling["x_min"], net.exact_scaling["x_max"],
+                                               column_groups(arch["n_in"], 6)), dtype=dtype))
+    net.y_scale.copy_(torch.as_tensor(scale_of(net.exact_scaling["y_min"], net.exact_scaling["y_max"],
+                                               column_groups(arch["n_out"], arch["n_out"])), dtype=dtype))
+    return net

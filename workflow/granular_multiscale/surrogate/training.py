@@ -2,10 +2,12 @@
 
 Adam on the min–max scaled data (MAE loss by default, paper Table 3), mini-batches drawn
 by a seeded generator; the held-out Gauss points give the validation loss of every epoch
-but never choose anything (the final weights are those of the last epoch). Outputs:
+but never choose anything (the final weights are those of the last epoch). With
+``surrogate.ensemble_size`` K > 1 this is done K times from different seeds and the model is
+the members' mean. Outputs:
 
 * the :class:`~.models.SurrogateModel` (weights, scaling, names, config, training summary),
-* the loss history per epoch (train and held-out, on the scaled targets),
+* the loss history per epoch and member (train and held-out, on the scaled targets),
 * the final MAE of every target component in physical units on the train and held-out points.
 """
 
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -25,7 +28,7 @@ from ..atomic import atomic_path
 from ..history import accumulated_from_sequence
 from ..tensors import ENGINEERING_FACTOR, tangent_from_upper
 from .dataset import features, history_selection, scaling, target_names, targets
-from .models import SurrogateModel, trial_features
+from .models import EnsembleMLP, ScaledMLP, SurrogateModel, trial_features
 
 _KIND_INDEX = {"sigma": 0, "tangent": 1}
 
@@ -34,9 +37,11 @@ class TrainingError(RuntimeError):
     """Training cannot run or diverged; the message names the config key or the epoch."""
 
 
-def model_seed(seed: int, kind: str, use_history: bool) -> int:
-    """Distinct, reproducible seed per network (NNσ, ND, with and without history)."""
-    return int(np.random.SeedSequence([int(seed), _KIND_INDEX[kind], int(bool(use_history))]).generate_state(1)[0])
+def model_seed(seed: int, kind: str, use_history: bool, member: int = 0) -> int:
+    """Distinct, reproducible seed per network (NNσ, ND, with and without history) and ensemble
+    member; member 0 has the seed a single network has."""
+    key = [int(seed), _KIND_INDEX[kind], int(bool(use_history))] + ([int(member)] if member else [])
+    return int(np.random.SeedSequence(key).generate_state(1)[0])
 
 
 def _device(settings: dict) -> torch.device:
@@ -98,6 +103,23 @@ def _scheduler(optimiser, settings: dict, epochs: int):
     raise TrainingError(f"config key 'surrogate.lr_schedule' must be 'constant' or 'cosine', got {kind!r}")
 
 
+@dataclass
+class _Fit:
+    """What every network of one training shares: scaled data, loss, options."""
+
+    x_tr: torch.Tensor
+    y_tr: torch.Tensor
+    x_ho: torch.Tensor
+    y_ho: torch.Tensor
+    loss_fn: object
+    history: tuple
+    jac: dict | None
+    jacobian_weight: float
+    epochs: int
+    batch_size: int
+    log_every: int
+
+
 def train(
     train_ds: xr.Dataset,
     heldout_ds: xr.Dataset,
@@ -108,53 +130,89 @@ def train(
     config: dict | None = None,
     logger: logging.Logger | None = None,
 ) -> tuple[SurrogateModel, pd.DataFrame, pd.DataFrame]:
-    """Train NNσ (kind 'sigma') or ND (kind 'tangent'). Returns (model, loss per epoch, MAE table)."""
+    """Train NNσ (kind 'sigma') or ND (kind 'tangent'). Returns (model, loss per epoch, MAE table).
+
+    With ``surrogate.ensemble_size`` K > 1 it trains K networks from seeds model_seed(..., member)
+    and the model is their mean (models.EnsembleMLP); the loss table has one block per member."""
     logger = logger or logging.getLogger(__name__)
     target_names(kind)
     torch.set_num_threads(int(settings.get("torch_threads", 1)))
     torch.use_deterministic_algorithms(True)
     device = _device(settings)
-    loss_fn = _loss_fn(settings["loss"])
-    epochs, batch_size = int(settings["epochs"]), int(settings["batch_size"])
-    log_every = int(settings.get("log_every", 50))
-    rng_seed = model_seed(seed, kind, use_history)
+    n_members = int(settings.get("ensemble_size", 1))
+    if n_members < 1:
+        raise TrainingError(f"config key 'surrogate.ensemble_size' must be >= 1, got {n_members}")
     history = history_selection(settings.get("history_variables", True)) if use_history else ()
+    seeds = [model_seed(seed, kind, use_history, member) for member in range(n_members)]
 
-    torch.manual_seed(rng_seed)
+    torch.manual_seed(seeds[0])
     model = SurrogateModel.create(kind, history, scaling(train_ds, kind, history), settings, config)
-    net = model.network.to(device)
+    first = model.network.to(device)
     as_t = lambda a: torch.as_tensor(a, dtype=torch.float32, device=device)  # noqa: E731
     with torch.no_grad():
-        x_tr = net.scale_x(as_t(features(train_ds, history)))
-        y_tr = net.scale_y(as_t(targets(train_ds, kind)))
-        x_ho = net.scale_x(as_t(features(heldout_ds, history)))
-        y_ho = net.scale_y(as_t(targets(heldout_ds, kind)))
-    n = x_tr.shape[0]
+        x_tr, y_tr = first.scale_x(as_t(features(train_ds, history))), first.scale_y(as_t(targets(train_ds, kind)))
+        x_ho, y_ho = first.scale_x(as_t(features(heldout_ds, history))), first.scale_y(as_t(targets(heldout_ds, kind)))
     jacobian_weight = float(settings.get("jacobian_loss_weight", 0.0)) if kind == "sigma" else 0.0
-    jac = _jacobian_data(train_ds, net, device) if jacobian_weight > 0 else None
-    optimiser = torch.optim.Adam(net.parameters(), lr=float(settings["learning_rate"]))
-    scheduler = _scheduler(optimiser, settings, epochs)
-    generator = torch.Generator().manual_seed(rng_seed)
+    fit = _Fit(x_tr, y_tr, x_ho, y_ho, _loss_fn(settings["loss"]), history,
+               _jacobian_data(train_ds, first, device) if jacobian_weight > 0 else None, jacobian_weight,
+               int(settings["epochs"]), int(settings["batch_size"]), int(settings.get("log_every", 50)))
     name = f"{'NNσ' if kind == 'sigma' else 'ND'}{'' if use_history else ' (no history)'}"
     logger.info(
-        "%s: %d -> %d, %d train / %d held-out samples, %d epochs, batch %d, lr %g (%s), %s loss%s, seed %d",
-        name, x_tr.shape[1], y_tr.shape[1], n, x_ho.shape[0], epochs, batch_size,
+        "%s: %d -> %d, %d train / %d held-out samples, %d epochs, batch %d, lr %g (%s), %s loss%s, %s",
+        name, x_tr.shape[1], y_tr.shape[1], x_tr.shape[0], x_ho.shape[0], fit.epochs, fit.batch_size,
         settings["learning_rate"], settings.get("lr_schedule", "constant"), settings["loss"],
-        f" + {jacobian_weight:g} × Jacobian loss" if jac is not None else "", rng_seed,
+        f" + {jacobian_weight:g} × Jacobian loss" if fit.jac is not None else "",
+        f"seed {seeds[0]}" if n_members == 1 else f"ensemble of {n_members}, seeds {seeds}",
     )
 
+    members, losses = [], []
+    for member, member_seed in enumerate(seeds):
+        torch.manual_seed(member_seed)  # member 0 was initialised above, from the same seed
+        net = first if member == 0 else ScaledMLP(**model.architecture, **first.exact_scaling).to(device)
+        label = name if n_members == 1 else f"{name} member {member + 1}/{n_members}"
+        rows = _fit_network(net, fit, settings, member_seed, label, logger)
+        members.append(net.cpu())
+        losses.append(pd.DataFrame(rows, columns=["epoch", "train_loss", "heldout_loss", "elapsed_s"]).assign(member=member))
+
+    model.network = members[0] if n_members == 1 else EnsembleMLP(members)
+    model.network.eval()
+    with torch.no_grad():  # the loss of what is used: the ensemble mean (for one network, its last epoch)
+        final_train, final_heldout = (float(fit.loss_fn(model.network.forward_scaled(x.cpu()), y.cpu()))
+                                      for x, y in ((x_tr, y_tr), (x_ho, y_ho)))
+    mae = component_mae(model, train_ds, heldout_ds)
+    model.initial_state = initial_state(train_ds, kind, history)
+    model.training = {
+        "seed": seeds[0],
+        "member_seeds": seeds,
+        "epochs": fit.epochs,
+        "final_train_loss": final_train,
+        "final_heldout_loss": final_heldout,
+        "train_gp": np.asarray(train_ds.gp.values).tolist(),
+        "heldout_gp": np.asarray(heldout_ds.gp.values).tolist(),
+        "wall_time_s": float(sum(df["elapsed_s"].iloc[-1] for df in losses)),
+        "torch_version": torch.__version__,
+    }
+    return model, pd.concat(losses, ignore_index=True), mae
+
+
+def _fit_network(net, fit: _Fit, settings: dict, rng_seed: int, name: str, logger: logging.Logger) -> list[tuple]:
+    """Adam over mini-batches from a generator seeded with rng_seed; rows (epoch, train loss, held-out loss, s)."""
+    optimiser = torch.optim.Adam(net.parameters(), lr=float(settings["learning_rate"]))
+    scheduler = _scheduler(optimiser, settings, fit.epochs)
+    generator = torch.Generator().manual_seed(rng_seed)
+    n = fit.x_tr.shape[0]
     rows = []
     t0 = time.perf_counter()
-    for epoch in range(1, epochs + 1):
+    for epoch in range(1, fit.epochs + 1):
         net.train()
-        order = torch.randperm(n, generator=generator).to(device)
-        for start in range(0, n, batch_size):
-            idx = order[start : start + batch_size]
-            if jac is None:
-                loss = loss_fn(net.forward_scaled(x_tr[idx]), y_tr[idx])
+        order = torch.randperm(n, generator=generator).to(fit.x_tr.device)
+        for start in range(0, n, fit.batch_size):
+            idx = order[start : start + fit.batch_size]
+            if fit.jac is None:
+                loss = fit.loss_fn(net.forward_scaled(fit.x_tr[idx]), fit.y_tr[idx])
             else:
-                prediction, slope, target_slope = _directional_slopes(net, jac, idx, history, generator)
-                loss = loss_fn(prediction, y_tr[idx]) + jacobian_weight * loss_fn(slope, target_slope)
+                prediction, slope, target_slope = _directional_slopes(net, fit.jac, idx, fit.history, generator)
+                loss = fit.loss_fn(prediction, fit.y_tr[idx]) + fit.jacobian_weight * fit.loss_fn(slope, target_slope)
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             optimiser.step()
@@ -162,30 +220,14 @@ def train(
             scheduler.step()
         net.eval()
         with torch.no_grad():
-            train_loss = float(loss_fn(net.forward_scaled(x_tr), y_tr))
-            heldout_loss = float(loss_fn(net.forward_scaled(x_ho), y_ho))
+            train_loss = float(fit.loss_fn(net.forward_scaled(fit.x_tr), fit.y_tr))
+            heldout_loss = float(fit.loss_fn(net.forward_scaled(fit.x_ho), fit.y_ho))
         if not (np.isfinite(train_loss) and np.isfinite(heldout_loss)):
             raise TrainingError(f"{name}: loss is not finite at epoch {epoch}; lower surrogate.learning_rate")
         rows.append((epoch, train_loss, heldout_loss, time.perf_counter() - t0))
-        if epoch % log_every == 0 or epoch == epochs:
-            logger.info("%s epoch %d/%d: train %.3e, held-out %.3e (%.1f s)", name, epoch, epochs, train_loss, heldout_loss, rows[-1][3])
-
-    net = net.cpu()
-    model.network = net
-    losses = pd.DataFrame(rows, columns=["epoch", "train_loss", "heldout_loss", "elapsed_s"])
-    mae = component_mae(model, train_ds, heldout_ds)
-    model.initial_state = initial_state(train_ds, kind, history)
-    model.training = {
-        "seed": rng_seed,
-        "epochs": epochs,
-        "final_train_loss": rows[-1][1],
-        "final_heldout_loss": rows[-1][2],
-        "train_gp": np.asarray(train_ds.gp.values).tolist(),
-        "heldout_gp": np.asarray(heldout_ds.gp.values).tolist(),
-        "wall_time_s": rows[-1][3],
-        "torch_version": torch.__version__,
-    }
-    return model, losses, mae
+        if epoch % fit.log_every == 0 or epoch == fit.epochs:
+            logger.info("%s epoch %d/%d: train %.3e, held-out %.3e (%.1f s)", name, epoch, fit.epochs, train_loss, heldout_loss, rows[-1][3])
+    return rows
 
 
 def initial_state(ds: xr.Dataset, kind: str, history=True) -> dict:
@@ -220,26 +262,11 @@ def component_mae(model: SurrogateModel, train_ds: xr.Dataset, heldout_ds: xr.Da
 
 
 def plot_losses(losses: dict[str, pd.DataFrame], path, loss_name: str = "MAE") -> None:
-    """Training and held-out loss per epoch of one or more networks, log scale."""
-    import matplotlib
+    """Training and held-out loss per epoch of one or more networks (panel per key), log scale."""
+    from ..analysis.figures import training_curves
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for (label, df), colour in zip(losses.items(), plt.rcParams["axes.prop_cycle"].by_key()["color"]):
-        ax.semilogy(df["epoch"], df["train_loss"], color=colour, label=f"{label} train")
-        ax.semilogy(df["epoch"], df["heldout_loss"], color=colour, linestyle="--", label=f"{label} held-out")
-    ax.set_xlabel("epoch")
-    ax.set_ylabel(f"{loss_name} (scaled targets)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=120, format="png")
-    finally:
-        plt.close(fig)
+    training_curves({f"{label}|": df for label, df in losses.items()}, path, loss_name=loss_name,
+                    figsize=(6.0 * len(losses), 4.0))
 
 
 def write_table(table: pd.DataFrame, path) -> None:
