@@ -39,10 +39,13 @@ def test_shipped_configs_build_the_triaxial_problem(name, n_gp):
 
 def test_numbers_given_as_strings_are_read_as_numbers():
     """YAML 1.1 reads `1e-4` as a string, and Snakemake's --config 'analysis={...: [100, 300]}'
-    gives the nested values as strings: both are read as the numbers they are; words are not."""
-    config = validate_config({"surrogate": {"learning_rate": "1e-4"},
+    gives the nested values as strings: both are read as the numbers (booleans) they are; words are not."""
+    config = validate_config({"surrogate": {"learning_rate": "1e-4", "anchor_initial_state": "false"},
                               "analysis": {"fem_dem_sphere_counts": ["100", "300"]}})
     assert config["surrogate"]["learning_rate"] == 1e-4
+    assert config["surrogate"]["anchor_initial_state"] is False
+    with pytest.raises(ConfigError, match=r"'surrogate\.anchor_initial_state'"):
+        validate_config({"surrogate": {"anchor_initial_state": "maybe"}})
     assert config["analysis"]["fem_dem_sphere_counts"] == [100, 300]
     with pytest.raises(ConfigError, match=r"'analysis\.fem_dem_sphere_counts\[0\]'"):
         validate_config({"analysis": {"fem_dem_sphere_counts": ["many"]}})

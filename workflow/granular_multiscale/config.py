@@ -31,18 +31,21 @@ def _key(path) -> str:
     return "".join(parts) or "<top level>"
 
 
-def _as_number(value: Any, schema: dict) -> Any:
-    """Numbers that arrive as strings, accepted as the numbers they are: YAML 1.1 reads `1e-4`
-    (no dot, no exponent sign) as a string, and Snakemake's --config reads the values nested in
-    a mapping (`--config 'analysis={fem_dem_sphere_counts: [100, 300]}'`) as strings."""
+def _from_text(value: Any, schema: dict) -> Any:
+    """Numbers and booleans that arrive as strings, accepted as what they are: YAML 1.1 reads
+    `1e-4` (no dot, no exponent sign) as a string, and Snakemake's --config reads the values
+    nested in a mapping (`--config 'surrogate={epochs: 100, anchor_initial_state: false}'`) as
+    strings."""
     kind = schema.get("type")
     if isinstance(value, list) and kind == "array" and isinstance(schema.get("items"), dict):
-        return [_as_number(v, schema["items"]) for v in value]
+        return [_from_text(v, schema["items"]) for v in value]
     if isinstance(value, str) and kind in ("number", "integer"):
         try:
             return float(value) if kind == "number" else int(value)
         except ValueError:
             return value
+    if isinstance(value, str) and kind == "boolean":
+        return {"true": True, "false": False}.get(value.strip().lower(), value)
     return value
 
 
@@ -54,7 +57,7 @@ def _fill_defaults(instance: Any, schema: dict) -> None:
         if name not in instance and "default" in sub:
             instance[name] = copy.deepcopy(sub["default"])
         if name in instance:
-            instance[name] = _as_number(instance[name], sub)
+            instance[name] = _from_text(instance[name], sub)
             _fill_defaults(instance[name], sub)
     extra = schema.get("additionalProperties")
     if isinstance(extra, dict):
