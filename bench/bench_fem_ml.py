@@ -19,7 +19,9 @@ data (the elastoplastic reference: its paper-mesh runs take seconds) run the who
     .venv/bin/python bench/bench_fem_ml.py --models results/paper_ep/models \
         --reference results/paper_ep/fem_elastoplastic/path2.h5
 
-(--reference: the top-force error against that run, per load phase, in % of its peak.)
+(--reference: the top-force error against that run, per load phase, in % of its peak; add
+`ensemble_size: 5` to the surrogate overrides, and another output_dir, for the ensemble row
+of docs/surrogate.md.)
 
     .venv/bin/python bench/bench_fem_ml.py [--models results/models] [--train] [--epochs 150]
                                            [--elements 5 5 10] [--json out.json]
@@ -44,6 +46,7 @@ from granular_multiscale.data import read_run
 from granular_multiscale.fem.newton import ConvergenceError
 from granular_multiscale.paths import load_paths_from_config
 from granular_multiscale.surrogate.fem_ml import run_fem_ml
+from granular_multiscale.surrogate.models import SurrogateModel
 
 from bench_fem_ml_vs_dem import train_elastoplastic_models
 
@@ -79,6 +82,8 @@ def main() -> None:
         sigma, tangent = quick_models(config, Path(scratch.name), args.epochs)
     else:
         print(f"models: {sigma}, {tangent}")
+    ensemble_size = SurrogateModel.load(sigma).ensemble_size
+    print(f"networks per model: {ensemble_size}" + (" (an ensemble: the mean of their predictions)" if ensemble_size > 1 else ""))
 
     paper = dict(config, specimen=dict(config["specimen"], elements=list(args.elements)))
     if args.path == "monotonic":  # same step count as Path2, without its reversal (timing only)
@@ -106,6 +111,7 @@ def main() -> None:
             "max_iterations_per_step": int(ds["newton_iterations"].max()),
             "cutbacks": int(ds["cutbacks"].sum()),
             "gauss_points": int(ds.sizes["gp"]),
+            "ensemble_size": ensemble_size,
             "steps": n_steps,
             "steps_done": int(ds.sizes["step"]) - 1,
         }

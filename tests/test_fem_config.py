@@ -30,7 +30,7 @@ def test_load_config_override_with_wrong_type_names_the_key():
         load_config(CONFIG_DIR / "tiny.yaml", overrides={"specimen.confining_pressure": "high"})
 
 
-@pytest.mark.parametrize("name, n_gp", [("tiny.yaml", 16), ("config.yaml", 128), ("paper.yaml", 2000)])
+@pytest.mark.parametrize("name, n_gp", [("tiny.yaml", 16), ("config.yaml", 128), ("paper.yaml", 2000), ("elastoplastic.yaml", 128)])
 def test_shipped_configs_build_the_triaxial_problem(name, n_gp):
     problem = TriaxialProblem.from_config(load_config(CONFIG_DIR / name))
     assert problem.n_gauss_points == n_gp

@@ -19,8 +19,10 @@ ROOT = Path(__file__).resolve().parents[1]
 def tiny_chain(tmp_path_factory):
     out = tmp_path_factory.mktemp("surrogate") / "tiny"
     targets = [f"{out}/tables/fem_ml_curve_errors.csv"]
+    # NNσ and ND as ensembles of two: the ensemble path through the rules, model files and figures
     cmd = [sys.executable, "-m", "snakemake", "-j2", "--configfile", "config/tiny.yaml",
-           "--config", "reference_material=elastoplastic", f"output_dir={out}", "--", *targets]
+           "--config", "reference_material=elastoplastic", f"output_dir={out}", "surrogate={ensemble_size: 2}",
+           "--", *targets]
     result = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-4000:]
     return out
@@ -37,9 +39,11 @@ def test_dataset_and_models(tiny_chain):
     assert sigma.kind == "sigma" and sigma.history == ("phi1", "phi2")  # config/tiny.yaml
     assert sigma.config["surrogate"]["history_variables"] == ["phi1", "phi2"]
     assert SurrogateModel.load(out / "models/nn_tangent_nohist.pt").feature_names[-1] == "strain_12"
+    assert sigma.ensemble_size == 2 and len(set(sigma.training["member_seeds"])) == 2
     losses = pd.read_csv(out / "training/sigma.csv")
-    assert len(losses) == sigma.config["surrogate"]["epochs"]
-    assert losses.heldout_loss.iloc[-1] < 0.5 * losses.heldout_loss.iloc[0]
+    for _, member in losses.groupby("member"):
+        assert len(member) == sigma.config["surrogate"]["epochs"]
+        assert member.heldout_loss.iloc[-1] < 0.5 * member.heldout_loss.iloc[0]
     mae = pd.read_csv(out / "tables/surrogate_training_mae.csv")
     assert set(mae.network) == {"sigma", "tangent", "sigma_nohist", "tangent_nohist"}
     assert (out / "training/sigma_loss.png").stat().st_size > 5000

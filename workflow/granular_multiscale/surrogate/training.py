@@ -167,8 +167,11 @@ def train(
 
     members, losses = [], []
     for member, member_seed in enumerate(seeds):
-        torch.manual_seed(member_seed)  # member 0 was initialised above, from the same seed
-        net = first if member == 0 else ScaledMLP(**model.architecture, **first.exact_scaling).to(device)
+        if member == 0:
+            net = first  # initialised above from seeds[0]
+        else:
+            torch.manual_seed(member_seed)
+            net = ScaledMLP(**model.architecture, **first.exact_scaling).to(device)
         label = name if n_members == 1 else f"{name} member {member + 1}/{n_members}"
         rows = _fit_network(net, fit, settings, member_seed, label, logger)
         members.append(net.cpu())
