@@ -210,7 +210,7 @@ class EnsembleMLP(nn.Module):
 
 @dataclass
 class SurrogateModel:
-    network: ScaledMLP
+    network: ScaledMLP | EnsembleMLP  # one network, or an ensemble (surrogate.ensemble_size)
     kind: str  # "sigma" (NNσ) or "tangent" (ND)
     feature_names: tuple[str, ...]
     target_names: tuple[str, ...]
