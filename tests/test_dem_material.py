@@ -144,6 +144,24 @@ def test_commit_continues_from_the_accepted_trial(tmp_path_factory):
         assert np.array_equal(sc, sc_other) and not np.array_equal(sc, sa)
 
 
+def test_commit_at_an_earlier_trial_strain(tmp_path_factory):
+    """commit(a) after a later trial b (a line search that kept an earlier length): the RVEs
+    continue from the state at a, bit for bit like a set whose last trial was a."""
+    path, _ = packing(tmp_path_factory)
+    rng = np.random.default_rng(4)
+    a = rng.normal(scale=3e-4, size=(2, 6))
+    b = a + rng.normal(scale=2e-4, size=(2, 6))
+    c = a + rng.normal(scale=3e-4, size=(2, 6))
+    with _material(path, n_points=2) as m, _material(path, n_points=2) as direct:
+        sa, _ = m.evaluate(a)
+        m.evaluate(b)
+        m.commit(a)
+        assert np.array_equal(m.conv_strain, a) and np.array_equal(m.conv_stress, sa)
+        direct.evaluate(a)
+        direct.commit(a)
+        assert np.array_equal(m.evaluate(c)[0], direct.evaluate(c)[0])
+
+
 def test_results_do_not_depend_on_the_number_of_workers(tmp_path_factory):
     path, _ = packing(tmp_path_factory)
     strain = np.random.default_rng(3).normal(scale=5e-4, size=(5, 6))

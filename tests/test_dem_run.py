@@ -97,6 +97,23 @@ def _run_in_subprocess(tmp_path, config, packings, output, checkpoint, workers):
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
 
 
+def _kill_after_step(proc, checkpoint: Path, kill_step: int, timeout: float = 300) -> int:
+    """SIGKILL the run's process group once its checkpoint holds step `kill_step`; the step reached."""
+    deadline = time.time() + timeout
+    step = -1
+    while time.time() < deadline and proc.poll() is None:
+        try:
+            step = pickle.loads(checkpoint.read_bytes())["step"]
+        except Exception:
+            pass
+        if step >= kill_step:
+            os.killpg(proc.pid, signal.SIGKILL)
+            break
+        time.sleep(0.02)
+    proc.wait()
+    return step
+
+
 def test_determinism_and_resume_after_kill(tmp_path_factory, tmp_path):
     """Two uninterrupted runs (2 and 1 workers) agree bit for bit; a run killed after its third
     converged step and started again resumes from the checkpoint (the newest RVE snapshot +
@@ -112,18 +129,7 @@ def test_determinism_and_resume_after_kill(tmp_path_factory, tmp_path):
 
     checkpoint = ck / "c.ckpt"
     proc = _run_in_subprocess(tmp_path, config, packings, tmp_path / "c.h5", checkpoint, 2)
-    deadline = time.time() + 300
-    step = -1
-    while time.time() < deadline and proc.poll() is None:
-        try:
-            step = pickle.loads(checkpoint.read_bytes())["step"]
-        except Exception:
-            pass
-        if step >= 3:
-            os.killpg(proc.pid, signal.SIGKILL)
-            break
-        time.sleep(0.02)
-    proc.wait()
+    step = _kill_after_step(proc, checkpoint, 3)
     assert 3 <= step < 6 and proc.returncode == -signal.SIGKILL, proc.stderr.read()[-2000:]
     assert not (tmp_path / "c.h5").exists()
     # commits = load steps + 1 (step 0, the initial state, is committed too); snapshots every 2
@@ -137,6 +143,30 @@ def test_determinism_and_resume_after_kill(tmp_path_factory, tmp_path):
     assert f"resumed after {step + 1} commits (snapshot after commit {base} + {step + 1 - base} replayed" in err, err[-3000:]
     c = read_run(tmp_path / "c.h5")
     _same_results(a, c)
+    # the resumed run's cost covers all its load steps, those before the kill included
+    assert c.attrs["time_run_s"] >= c.wall_time.values.sum()
+    assert c.attrs["time_run_s"] == pytest.approx(a.attrs["time_run_s"], rel=0.5)
+    assert c.attrs["dem_particle_steps"] == a.attrs["dem_particle_steps"] == c.particle_steps.values.sum()
+    assert c.attrs["dem_trials"] == a.attrs["dem_trials"]
+    assert c.attrs["total_newton_corrections"] == a.attrs["total_newton_corrections"]
+
+
+def test_resume_after_a_config_change_starts_afresh(tmp_path_factory, tmp_path):
+    """Killed, then started again with other DEM settings (dem.max_steps): the checkpoint is set
+    aside with one log line and the run starts from the packings, with the result of a fresh run."""
+    path, _ = packing(tmp_path_factory)
+    packings = [str(path)]
+    config = tiny_config(tmp_path / "o", {"p": [[5, 0.005]]}, snapshot_interval=2)
+    checkpoint = tmp_path / "ck" / "p.ckpt"
+    proc = _run_in_subprocess(tmp_path, config, packings, tmp_path / "p.h5", checkpoint, 2)
+    assert _kill_after_step(proc, checkpoint, 2) >= 2 and proc.returncode == -signal.SIGKILL
+    changed = tiny_config(tmp_path / "o", {"p": [[5, 0.005]]}, snapshot_interval=2, max_steps=15000)
+    proc2 = _run_in_subprocess(tmp_path, changed, packings, tmp_path / "p.h5", checkpoint, 2)
+    _, err = proc2.communicate(timeout=300)
+    assert proc2.returncode == 0, err[-3000:]
+    assert err.count("set aside") == 1 and "resuming" not in err, err[-3000:]
+    fresh = run_fem_dem(changed, "p", packings, tmp_path / "fresh.h5", None, 2)
+    _same_results(fresh, read_run(tmp_path / "p.h5"))
 
 
 def test_dask_local_cluster_equals_local_pool(tmp_path_factory, tmp_path):

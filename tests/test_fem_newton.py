@@ -126,11 +126,11 @@ class KilledAfter(Elastoplastic):
         super().__init__(*args, **kwargs)
         self.commits_left = commits
 
-    def commit(self):
+    def commit(self, strain=None):
         if self.commits_left == 0:
             raise KeyboardInterrupt("simulated kill")
         self.commits_left -= 1
-        super().commit()
+        super().commit(strain)
 
 
 def test_checkpoint_resume_gives_the_uninterrupted_result(tmp_path, caplog):
@@ -187,3 +187,130 @@ def test_anderson_mixing_refuses_a_non_finite_correction():
     np.testing.assert_array_equal(first, [1.0, 0.5, 0.0, 0.0])  # no history yet: the plain correction
     with pytest.raises(StepFailed, match="non-finite Newton correction"):
         mixer.step(u + first, np.array([np.inf, 0.0, np.nan, 0.0]))
+
+
+class RecordsCommits(Elastoplastic):
+    """Remembers the strain every commit was given, and the strain of the last evaluation."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.committed, self.last_evaluated = [], []
+
+    def evaluate(self, strain, need_tangent=True):
+        self.last = np.array(strain)
+        return super().evaluate(strain, need_tangent)
+
+    def commit(self, strain=None):
+        self.committed.append(None if strain is None else np.array(strain))
+        self.last_evaluated.append(self.last.copy())
+        super().commit(strain)
+
+
+def test_the_solver_commits_the_strain_it_accepted():
+    """The converged state is named explicitly: every commit gets the strain the run file records
+    for that step (with a line search the accepted trial need not be the last one evaluated)."""
+    problem = TriaxialProblem(elements=(1, 1, 2), platen="rough", newton=NewtonSettings(line_search=True))
+    material = RecordsCommits(problem.n_gauss_points, initial_stress=problem.initial_stress)
+    ds = problem.run(material, SHORT, progress=False)
+    assert len(material.committed) == ds.sizes["step"] and not ds.cutbacks.values.any()
+    for step, strain in enumerate(material.committed):
+        assert strain is not None, f"step {step}: commit() without the accepted strain"
+        np.testing.assert_array_equal(strain, ds.strain.values[step])
+
+
+def test_commit_at_an_earlier_trial_equals_committing_that_trial():
+    """commit(strain) after a later evaluation elsewhere: the set goes back to the state at `strain`."""
+    e1 = np.tile([0.004, 0.004, -0.01, 0.0, 0.0, 0.0], (2, 1))  # beyond first yield
+    e2 = 1.5 * e1
+    direct = Elastoplastic(2, initial_stress=[-1e5, -1e5, -1e5, 0, 0, 0])
+    direct.evaluate(e1)
+    direct.commit(e1)
+    detour = Elastoplastic(2, initial_stress=[-1e5, -1e5, -1e5, 0, 0, 0])
+    detour.evaluate(e1)
+    detour.evaluate(e2)  # e.g. a rejected line-search length, evaluated after the accepted one
+    detour.commit(e1)
+    a, b = direct.get_state(), detour.get_state()
+    assert a["kappa"].max() > 0  # plastic: the committed state carries history
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+class SlowElastoplastic(Elastoplastic):
+    """Elastoplastic points whose every evaluation takes 5 ms more, so wall times are measurable."""
+
+    def evaluate(self, strain, need_tangent=True):
+        import time
+
+        time.sleep(0.005)
+        return super().evaluate(strain, need_tangent)
+
+
+class SlowKilledAfter(KilledAfter, SlowElastoplastic):
+    pass
+
+
+def test_a_resumed_run_counts_the_time_of_the_steps_before_its_checkpoint(tmp_path):
+    problem = TriaxialProblem(elements=(1, 1, 2), platen="rough")
+    checkpoint = tmp_path / "run.ckpt"
+    n = problem.n_gauss_points
+    full = problem.run(SlowElastoplastic(n, initial_stress=problem.initial_stress), SHORT, progress=False)
+    with pytest.raises(KeyboardInterrupt):
+        problem.run(SlowKilledAfter(n, initial_stress=problem.initial_stress, commits=6), SHORT,
+                    checkpoint=checkpoint, progress=False)
+    resumed = problem.run(SlowElastoplastic(n, initial_stress=problem.initial_stress), SHORT,
+                          checkpoint=checkpoint, progress=False)
+    steps = resumed.wall_time.values
+    before = steps[:6].sum()
+    assert before > 0.3 * steps.sum()  # the checkpoint holds a good share of the run
+    # the run's time is that of all its load steps, not only of those after the resume
+    assert resumed.attrs["time_run_s"] >= steps.sum()
+    assert resumed.attrs["time_run_s"] == pytest.approx(full.attrs["time_run_s"], rel=0.5)
+    assert resumed.attrs["time_resume_s"] >= 0 and full.attrs["time_resume_s"] == 0
+    for key in ("total_newton_corrections", "total_material_evaluations", "total_tangent_evaluations"):
+        assert resumed.attrs[key] == full.attrs[key], key
+    assert resumed.attrs["time_material_s"] >= 0.005 * full.attrs["total_material_evaluations"]
+
+
+class KeyedElastoplastic(Elastoplastic):
+    """Elastoplastic points whose converged state depends on a setting (like a DEM packing)."""
+
+    def __init__(self, *args, key="a", refuse=False, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.key, self.refuse = key, refuse
+
+    def checkpoint_key(self):
+        return {"setting": self.key}
+
+    def set_state(self, state):
+        if self.refuse:
+            raise ValueError("packing changed since the checkpoint was written")
+        super().set_state(state)
+
+
+class KeyedKilledAfter(KilledAfter, KeyedElastoplastic):
+    pass
+
+
+@pytest.mark.parametrize("change", ["key", "refused"])
+def test_a_checkpoint_that_no_longer_matches_its_run_is_set_aside(tmp_path, caplog, change):
+    """A config change between a kill and the rerun (other DEM settings or packings): one log line,
+    the stale checkpoint is removed and the run starts afresh, with the uninterrupted result."""
+    problem = TriaxialProblem(elements=(1, 1, 2), platen="rough")
+    checkpoint = tmp_path / "run.ckpt"
+    n, p0 = problem.n_gauss_points, problem.initial_stress
+    with pytest.raises(KeyboardInterrupt):
+        problem.run(KeyedKilledAfter(n, initial_stress=p0, commits=4), SHORT, checkpoint=checkpoint, progress=False)
+    assert checkpoint.exists()
+    changed = KeyedElastoplastic(n, initial_stress=p0, key="b") if change == "key" else \
+        KeyedElastoplastic(n, initial_stress=p0, refuse=True)
+    with caplog.at_level(logging.INFO, logger="granular_multiscale.fem"):
+        ds = problem.run(changed, SHORT, checkpoint=checkpoint, progress=False)
+    warnings = [r for r in caplog.records if "set aside" in r.getMessage()]
+    assert len(warnings) == 1 and warnings[0].levelno == logging.WARNING
+    assert "resuming" not in caplog.text
+    if change == "refused":
+        assert "packing changed" in warnings[0].getMessage()
+    fresh = problem.run(KeyedElastoplastic(n, initial_stress=p0, key="b"), SHORT, progress=False)
+    for name in ("strain", "stress", "top_force"):
+        np.testing.assert_array_equal(ds[name].values, fresh[name].values, err_msg=name)
+    assert not checkpoint.exists()

@@ -234,7 +234,8 @@ class DemMaterialPointSet(MaterialPointSet):
         self._trial = {"strain": strain.copy(), "dstrain": dstrain, "stress": stress, "tangent": tangent}
         return stress.copy(), (tangent.copy() if need_tangent else None)
 
-    def commit(self) -> None:
+    def commit(self, strain=None) -> None:
+        self._trial_at(strain, None if self._trial is None else self._trial["strain"])
         t0 = time.perf_counter()
         if self._trial is not None:
             self.executor.call_all(self._slot_messages("commit"))
@@ -283,6 +284,15 @@ class DemMaterialPointSet(MaterialPointSet):
         self._step["snapshot_time"] += wall
         self._step["overhead_time"] += wall
         self._step["material_time"] += wall
+
+    def checkpoint_key(self) -> dict:
+        """A checkpoint resumes only with the same packings (by content), assignment and DEM settings."""
+        return {
+            "packing_sha256": list(self.packing_sha256),
+            "assignment": self.assignment.tolist(),
+            "settings": dict(self.settings),
+            "snapshot_interval": self.snapshot_interval,
+        }
 
     def get_state(self) -> dict[str, Any]:
         if self._trial is not None:

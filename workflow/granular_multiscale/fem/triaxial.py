@@ -73,18 +73,21 @@ from .newton import (
     newton_solve,
 )
 
-CHECKPOINT_VERSION = 2
+CHECKPOINT_VERSION = 3
 SYMMETRIES = ("none", "quarter")
 
 
-def _cost_split(timers, total: float) -> dict:
-    """Run-file attributes: the cost split of a run, complete or stopped early (a resumed run
-    counts only the part after the checkpoint)."""
+def _cost_split(timers, total: float, resume_time: float = 0.0) -> dict:
+    """Run-file attributes: the cost split of a run, complete or stopped early. A resumed run
+    counts the load steps before and after its checkpoint (the timers travel with it); the
+    resume itself (reloading and replaying the material state) is ``time_resume_s``, and the
+    work lost with a killed step is counted nowhere."""
     return {
         "time_material_s": timers.material,
         "time_assembly_s": timers.assembly,
         "time_solve_s": timers.solve,
         "time_run_s": total,
+        "time_resume_s": resume_time,
         "total_newton_corrections": timers.iterations,
         "total_material_evaluations": timers.evaluations,
         "total_tangent_evaluations": timers.tangent_evaluations,
@@ -226,6 +229,8 @@ class TriaxialProblem:
             "newton": self.newton.__dict__,
             "path": [load_path.name, [list(s) for s in load_path.segments]],
             "material": [getattr(material, "method", type(material).__name__), material.n_points],
+            # what the material set's converged state depends on (DEM: packings and settings)
+            "material_key": material.checkpoint_key(),
             "version": CHECKPOINT_VERSION,
         }
         return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()
@@ -275,7 +280,7 @@ class TriaxialProblem:
                 mid = 0.5 * (lo + hi)
                 half = advance(lo, mid, depth + 1, u_start, prev)
                 return advance(mid, hi, depth + 1, half.u, half)
-            material.commit()
+            material.commit(result.strain)  # the accepted state, whichever trial was evaluated last
             stats["iterations"] += result.iterations
             return result
 
@@ -301,17 +306,36 @@ class TriaxialProblem:
         previous: Converged | None = None
         first = 0
         timers = Timers()
+        elapsed_before = 0.0  # load-step time of the steps a resumed run takes from its checkpoint
+        resume_time = 0.0
         if checkpoint is not None and checkpoint.exists():
+            t0 = time.perf_counter()
             saved = _load_checkpoint(checkpoint)
-            if saved is not None and saved["signature"] == signature:
-                records, u, previous = saved["records"], saved["u"], saved["previous"]
-                material.set_state(saved["material_state"])
-                first = saved["step"] + 1
-                logger.info("resuming from checkpoint %s after step %d", checkpoint, saved["step"])
+            reason = None
+            if saved is None or saved.get("signature") != signature:
+                reason = "it belongs to another run (or is unreadable)"
             else:
-                logger.warning("checkpoint %s belongs to another run (or is unreadable); starting afresh", checkpoint)
+                try:
+                    material.set_state(saved["material_state"])
+                except (ValueError, FileNotFoundError) as error:  # the set refuses a state it cannot continue
+                    reason = f"the material set cannot resume it ({error})"
+            if reason is None:
+                records, u, previous = saved["records"], saved["u"], saved["previous"]
+                timers = Timers(**saved["timers"])
+                elapsed_before = float(saved["elapsed"])
+                first = saved["step"] + 1
+                resume_time = time.perf_counter() - t0
+                logger.info("resuming from checkpoint %s after step %d (%.1f s of load steps done; resume took "
+                            "%.1f s)", checkpoint, saved["step"], elapsed_before, resume_time)
+            else:
+                checkpoint.unlink(missing_ok=True)
+                logger.warning("checkpoint %s set aside: %s; starting afresh", checkpoint, reason)
 
         t_run = time.perf_counter()
+
+        def elapsed() -> float:
+            """Load-step time of the whole run, across resumes (the resume itself excluded)."""
+            return elapsed_before + time.perf_counter() - t_run
         for step in range(first, load_path.n_steps + 1):
             t0 = time.perf_counter()
             evaluations_before, tangents_before = timers.evaluations, timers.tangent_evaluations
@@ -322,7 +346,7 @@ class TriaxialProblem:
                 if records["axial_strain"]:
                     error.partial = self._dataset(records, load_path, method)
                     error.partial.attrs.update({"stopped_at_step": step, "stop_reason": str(error),
-                                                **_cost_split(timers, time.perf_counter() - t_run)})
+                                                **_cost_split(timers, elapsed(), resume_time)})
                 logger.error("%s", error)
                 raise
             u, previous = result.u, result
@@ -348,6 +372,7 @@ class TriaxialProblem:
                 _save_checkpoint(checkpoint, {
                     "signature": signature, "step": step, "records": records, "u": u,
                     "previous": previous, "material_state": material.get_state(),
+                    "timers": timers.as_dict(), "elapsed": elapsed(),
                 })
             if progress:
                 logger.info(
@@ -355,9 +380,8 @@ class TriaxialProblem:
                     step, load_path.n_steps, phases[step], 100 * axial[step], stats["iterations"],
                     result.residual_norms[-1] / result.reference, stats["cutbacks"], wall,
                 )
-        total = time.perf_counter() - t_run
         ds = self._dataset(records, load_path, method)
-        ds.attrs.update(_cost_split(timers, total))
+        ds.attrs.update(_cost_split(timers, elapsed(), resume_time))
         if checkpoint is not None:
             checkpoint.unlink(missing_ok=True)
         return ds
@@ -410,6 +434,10 @@ class TriaxialProblem:
                               "(sub-)step (iteration 0 = after the predictor); NaN-padded"),
             "residual_reference": (("step",), np.asarray(rec["residual_reference"]), "N",
                                    "max(|f_ext|, |reaction|): convergence when residual_norm <= tolerance * this"),
+            "residual_relative": (("step",), np.asarray([r[-1] for r in rec["residual_norm"]]) /
+                                  np.asarray(rec["residual_reference"]), "1",
+                                  "relative residual the step was accepted at (its last residual_norm / "
+                                  "residual_reference; at most the attribute newton_tolerance)"),
             "cutbacks": (("step",), np.asarray(rec["cutbacks"], dtype=np.int64), "1", "times the step was halved"),
             "wall_time": (("step",), np.asarray(rec["wall_time"]), "s", "wall time of the step"),
             "phase": (("step",), np.asarray(load_path.phase()[:n_steps], dtype=str), "",

@@ -4,7 +4,7 @@ A material-point set holds ``n_points`` material points, each with a *converged*
 (that of the last committed load step). The solver's Newton loop calls
 
     stress, tangent = points.evaluate(strain)     # trial, any number of times per step
-    points.commit()                                # the last trial becomes the converged state
+    points.commit(strain)                          # the state at the accepted strain becomes converged
 
 ``evaluate`` is a pure function of the converged state and the trial strain: calling it
 twice with the same strain gives the same answer, and a rejected step (cutback) simply
@@ -43,8 +43,12 @@ class MaterialPointSet(ABC):
         """Trial response at total strain [n, 6]: stress [n, 6] and tangent [n, 6, 6] (or None)."""
 
     @abstractmethod
-    def commit(self) -> None:
-        """Accept the last evaluated trial as the converged state of every point."""
+    def commit(self, strain: np.ndarray | None = None) -> None:
+        """Accept the state at trial strain `strain` [n, 6] as the converged state of every point.
+
+        The solver passes the strain it accepted, which need not be the last one evaluated (a
+        line search may keep an earlier step length): a set whose last evaluation was at another
+        strain evaluates there again first (:meth:`_trial_at`). None: the last evaluated trial."""
 
     @abstractmethod
     def get_state(self) -> dict[str, Any]:
@@ -53,6 +57,20 @@ class MaterialPointSet(ABC):
     @abstractmethod
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore a converged state returned by :meth:`get_state`."""
+
+    def checkpoint_key(self) -> dict:
+        """What the converged state depends on beyond the points' strains (JSON-serialisable; e.g.
+        DEM packings and settings). A checkpoint written under another key is not resumed."""
+        return {}
+
+    def _trial_at(self, strain: np.ndarray | None, last_strain: np.ndarray | None, need_tangent: bool = False) -> None:
+        """Make the pending trial the one at `strain`: evaluate again unless `last_strain` (the
+        strain of the last evaluation, None if none) is exactly it. Called by ``commit``."""
+        if strain is None:
+            return
+        strain = np.asarray(strain, dtype=float)
+        if last_strain is None or not np.array_equal(strain, last_strain):
+            self.evaluate(strain, need_tangent=need_tangent)
 
     def step_info(self) -> dict[str, float]:
         """Per-step diagnostics the solver records after each commit (e.g. DEM time split)."""

@@ -57,7 +57,8 @@ class LinearElastic(MaterialPointSet):
         tangent = np.broadcast_to(self.stiffness, (self.n_points, 6, 6)).copy() if need_tangent else None
         return stress, tangent
 
-    def commit(self) -> None:
+    def commit(self, strain=None) -> None:
+        self._trial_at(strain, self._trial_strain)
         self._converged_strain = self._trial_strain.copy()
 
     def get_state(self) -> dict[str, Any]:

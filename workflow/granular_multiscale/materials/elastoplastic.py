@@ -238,7 +238,8 @@ class Elastoplastic(MaterialPointSet):
         self._last_plastic = plastic
         return stress.copy(), tangent
 
-    def commit(self) -> None:
+    def commit(self, strain=None) -> None:
+        self._trial_at(strain, None if self._trial is None else self._trial["strain"])
         if self._trial is None:
             raise RuntimeError("elastoplastic: commit() before any evaluate()")
         self._state = self._trial

@@ -131,8 +131,11 @@ class MaterialWrapper(MaterialPointSet):
     def evaluate(self, strain, need_tangent: bool = True):
         return self.inner.evaluate(strain, need_tangent=need_tangent)
 
-    def commit(self) -> None:
-        self.inner.commit()
+    def commit(self, strain=None) -> None:
+        self.inner.commit(strain)
+
+    def checkpoint_key(self) -> dict:
+        return self.inner.checkpoint_key()
 
     def get_state(self) -> dict[str, Any]:
         return self.inner.get_state()
@@ -167,9 +170,11 @@ class TangentRepair(MaterialWrapper):
         if not 0 < floor < 1:
             raise ValueError(f"config key 'newton.tangent_floor' must be in (0, 1), got {floor}")
         self.floor = float(floor)
+        self._last_strain = None
         self._trial_counts = self._committed_counts = {"tangent_non_spd_points": 0.0, "tangent_repaired_points": 0.0}
 
     def evaluate(self, strain, need_tangent: bool = True):
+        self._last_strain = np.array(strain, dtype=float)
         stress, tangent = self.inner.evaluate(strain, need_tangent=need_tangent)
         if tangent is not None:
             tangent = np.asarray(tangent, dtype=float)
@@ -180,8 +185,10 @@ class TangentRepair(MaterialWrapper):
                                   "tangent_repaired_points": float(repaired.sum())}
         return stress, tangent
 
-    def commit(self) -> None:
-        self.inner.commit()
+    def commit(self, strain=None) -> None:
+        # re-evaluated with the tangent, so the counts are those of the committed state
+        self._trial_at(strain, self._last_strain, need_tangent=True)
+        self.inner.commit(strain)
         self._committed_counts = dict(self._trial_counts)
 
     def step_info(self) -> dict[str, float]:
@@ -251,3 +258,9 @@ class UniformField(MaterialWrapper):
         if tangent is not None:
             tangent = np.broadcast_to(tangent, (self.n_points,) + tangent.shape[1:]).copy()
         return stress, tangent
+
+    def commit(self, strain=None) -> None:
+        if strain is not None:
+            strain = self._check_strain(strain)
+            strain = strain.mean(axis=0)[None, :]  # the one point's strain, as evaluate passed it
+        self.inner.commit(strain)

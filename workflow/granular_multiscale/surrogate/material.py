@@ -201,7 +201,8 @@ class SurrogateMaterial(MaterialPointSet):
         sigma = self._sigma_net(self._features(strain, acc_c, strain_c)) + self._sigma_offset
         return sigma, sigma
 
-    def commit(self) -> None:
+    def commit(self, strain=None) -> None:
+        self._trial_at(strain, self._trial)
         if self._trial is None:
             raise RuntimeError(f"{type(self).__name__}.commit() called before evaluate()")
         self._acc_c = accumulate(self._acc_c, self._strain_c, self._trial)
