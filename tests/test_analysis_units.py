@@ -184,3 +184,221 @@ def test_html_table_greys_reference_rows(tmp_path):
     table = pd.DataFrame({"method": ["a", "paper"], "wall_time_s": [1.5, 89280.0]})
     page = tables.write_html_table(table, tmp_path / "t.html", title="T", reference_rows=[1]).read_text()
     assert page.count("<tr") == 3 and 'class="reference"' in page and "<td>89280</td>" in page
+
+
+# -- what ran: symmetry and uniform field ----------------------------------------------
+
+
+def quarter_run(**attrs):
+    """A run of the quarter mesh (1×1×2 elements, 16 Gauss points) of a 2×2×2 specimen."""
+    ds = make_run("reference", elements=(1, 1, 2))
+    ds.attrs.update({"specimen_elements": [2, 2, 2], "mesh_elements": [1, 1, 2], "symmetry": "quarter",
+                     "modelled_fraction": 0.25, "uniform_field": 0, "gauss_points_per_element": 8, **attrs})
+    return ds
+
+
+def test_a_quarter_symmetry_run_counts_the_gauss_points_of_its_mesh():
+    ds = quarter_run(method="dem")
+    assert tables.describe_run(ds, "FEM–DEM", "Path2")["rves"] == 16
+    reduction = tables.model_reduction(ds)
+    assert reduction == {"specimen_elements": [2, 2, 2], "mesh_elements": [1, 1, 2], "symmetry": "quarter",
+                         "modelled_fraction": 0.25, "uniform_field": False, "gauss_points_full_specimen": 64,
+                         "gauss_points_modelled": 16, "material_points_evaluated": 16}
+
+
+def test_a_uniform_field_reference_run_evaluated_one_rve():
+    """One material point stands for the 16 Gauss points of a reference run; FEM–ML builds its
+    surrogate set with one point per Gauss point, so its row keeps all 16."""
+    dem = make_run("reference")
+    dem.attrs.update({"method": "dem", "uniform_field": 1, "symmetry": "none", "mesh_elements": [1, 1, 2],
+                      "specimen_elements": [1, 1, 2]})
+    assert tables.describe_run(dem, "FEM–DEM", "Path2")["rves"] == 1
+    assert tables.model_reduction(dem)["material_points_evaluated"] == 1
+    assert tables.model_reduction(dem)["gauss_points_modelled"] == 16
+    ml = dem.copy()
+    ml.attrs["method"] = "fem_ml_nn"
+    assert tables.describe_run(ml, "FEM–ML", "Path2")["rves"] == 16
+    # a run file that records its material points is taken at its word
+    ml.attrs["material_points"] = 1
+    assert tables.material_points_evaluated(ml) == 1
+
+
+def test_an_old_run_file_without_the_attrs_is_the_full_specimen():
+    ds = make_run("reference")
+    assert tables.model_reduction(ds)["symmetry"] == "none"
+    assert tables.model_reduction(ds)["material_points_evaluated"] == 16
+
+
+# -- numbers as people read them -------------------------------------------------------
+
+
+@pytest.mark.parametrize("value, number, ratio, duration", [
+    (0.247, "0.247", "0.247×", "0.247 s"),
+    (563.2, "563", "563×", "563 s (9.4 min)"),
+    (2660.3, "2,660", "2,660×", "2,660 s (44 min)"),
+    (1.2e5, "120,000", "120,000×", "120,000 s (33 h)"),
+    (0.9996, "1.00", "1.00×", "1.00 s"),
+    (12.34, "12.3", "12.3×", "12.3 s"),
+])
+def test_readable_numbers(value, number, ratio, duration):
+    from granular_multiscale.analysis import products
+
+    assert products.readable_number(value) == number
+    assert products.readable_ratio(value) == ratio
+    assert products.readable_duration(value) == duration
+
+
+def test_readable_numbers_of_nothing():
+    from granular_multiscale.analysis import products
+
+    assert products.readable_number(float("nan")) == "n/a" and products.readable_number(None) == "n/a"
+    assert products.readable_number(0.0) == "0" and products.readable_number(-2660.3) == "-2,660"
+    assert products.readable_duration(-1.0) == "n/a" and products.readable_ratio(float("inf")) == "n/a"
+
+
+# -- the full cost of an answer --------------------------------------------------------
+
+
+def test_break_even_is_the_smallest_number_of_runs_that_repays_the_surrogate():
+    # 2·0.5 + 1000 > 2·500, 3·0.5 + 1000 <= 3·500
+    assert tables.break_even_runs(1000.0, 500.0, 0.5) == 3
+    assert tables.break_even_runs(999.0, 500.0, 0.5) == 2  # 2·0.5 + 999 = 1000 = 2·500 exactly
+    assert tables.break_even_runs(0.0, 5.0, 1.0) == 1
+    assert tables.break_even_runs(10.0, 1.0, 2.0) is None  # the surrogate is slower: never
+    assert tables.break_even_runs(10.0, 1.0, 1.0) is None
+    with pytest.raises(ValueError, match="finite times"):
+        tables.break_even_runs(float("nan"), 1.0, 0.1)
+
+
+def write_cost_inputs(tmp_path, *, surrogate_steps=None):
+    """Speedup table of a 500 s reference and a 0.5 s FEM–ML run, a 400 s training run, an RVE
+    summary of two packings (60 + 40 s), and benchmarks of 20, 300 and 180 s."""
+    import json
+
+    from granular_multiscale.data import write_run
+
+    ref = make_run("reference")
+    ref.attrs["time_run_s"] = 500.0
+    ml = make_run("ml")
+    ml.attrs["time_run_s"] = 0.5
+    if surrogate_steps is not None:
+        ml = ml.isel(step=slice(0, surrogate_steps + 1))
+        ml.attrs["completed"] = 0
+    rows = [tables.describe_run(ref, "FEM–DEM (150 spheres)", "Path2"), tables.describe_run(ml, "FEM–ML (nn tangent)", "Path2")]
+    tables.write_csv(tables.speedup_table(rows), tmp_path / "speedup.csv")
+    training = make_run("reference", path=PATH2)
+    training.attrs["time_run_s"] = 400.0
+    write_run(training, tmp_path / "path1.h5", {})
+    (tmp_path / "summary.json").write_text(json.dumps({"packings": [{"wall_time": 60.0}, {"wall_time": 40.0}]}))
+    for name, seconds in (("dataset", 20.0), ("train_sigma", 300.0), ("train_tangent", 180.0)):
+        (tmp_path / f"{name}.tsv").write_text(f"s\th:m:s\tmax_rss\n{seconds}\t0:00:00\t100.0\n")
+    return [("RVE preparation", "rve_summary", tmp_path / "summary.json"),
+            ("reference run of Path1", "run", tmp_path / "path1.h5"),
+            ("dataset", "benchmark", tmp_path / "dataset.tsv"),
+            ("training NNσ", "benchmark", tmp_path / "train_sigma.tsv"),
+            ("training ND", "benchmark", tmp_path / "train_tangent.tsv")]
+
+
+def test_surrogate_cost_table_and_break_even(tmp_path):
+    from granular_multiscale.analysis import products
+
+    items = write_cost_inputs(tmp_path)
+    table = products.make_surrogate_cost(items, tmp_path / "speedup.csv", tmp_path / "cost.csv", tmp_path / "cost.html",
+                                         reference_label="FEM–DEM (150 spheres)", surrogate_label="FEM–ML (nn tangent)",
+                                         path_label="Path2")
+    saved = pd.read_csv(tmp_path / "cost.csv")
+    assert list(saved.columns) == list(tables.COST_COLUMNS)
+    costs = saved[saved["kind"] == "surrogate cost"]
+    assert costs["wall_time_s"].tolist() == pytest.approx([100.0, 400.0, 20.0, 300.0, 180.0])
+    total = saved[saved["kind"] == "surrogate cost total"]["wall_time_s"]
+    assert total.tolist() == pytest.approx([1000.0])
+    answers = saved[saved["kind"] == "one answer"]["wall_time_s"]
+    assert answers.tolist() == pytest.approx([500.0, 0.5])
+    # 1000 s of surrogate at a saving of 499.5 s per answer: 3 answers
+    even = saved[saved["kind"] == "break-even"]
+    assert even["runs"].tolist() == [3, 3]
+    assert even["wall_time_s"].tolist() == pytest.approx([3 * 0.5 + 1000.0, 3 * 500.0])
+    assert table["wall_time_h"].iloc[5] == pytest.approx(1000.0 / 3600)
+    page = (tmp_path / "cost.html").read_text()
+    assert "from 3 FEM–ML runs on" in page and "1,000 s (17 min)" in page
+
+    headline = products.make_headline(tmp_path / "speedup.csv", write_accuracy(tmp_path), tmp_path / "headline.json",
+                                      config=CONFIG, reference_label="FEM–DEM (150 spheres)",
+                                      surrogate_label="FEM–ML (nn tangent)", ablation_label=None,
+                                      cost_csv=tmp_path / "cost.csv")
+    assert headline["surrogate_cost_s"] == pytest.approx(1000.0) and headline["break_even_runs"] == 3
+    assert headline["display"]["surrogate_cost"] == "1,000 s (17 min)"
+    assert headline["display"]["break_even_runs"] == "3"
+    assert headline["display"]["speedup"] == "1,000×"  # 500 s / 0.5 s
+    assert headline["display"]["surrogate_cost_items"][0] == "RVE preparation 100 s"
+
+
+def test_a_surrogate_run_that_stopped_counts_its_time_per_step_for_the_whole_path(tmp_path):
+    from granular_multiscale.analysis import products
+
+    items = write_cost_inputs(tmp_path, surrogate_steps=19)  # 0.5 s for 19 of the 57 steps
+    products.make_surrogate_cost(items, tmp_path / "speedup.csv", tmp_path / "cost.csv", tmp_path / "cost.html",
+                                 reference_label="FEM–DEM (150 spheres)", surrogate_label="FEM–ML (nn tangent)",
+                                 path_label="Path2")
+    saved = pd.read_csv(tmp_path / "cost.csv")
+    assert saved[saved["kind"] == "one answer"]["wall_time_s"].tolist() == pytest.approx([500.0, 1.5])
+    assert saved[saved["kind"] == "break-even"]["runs"].tolist() == [3, 3]  # 1000 / 498.5
+    assert "stopped early" in (tmp_path / "cost.html").read_text()
+
+
+def test_surrogate_cost_names_a_bad_file(tmp_path):
+    from granular_multiscale.analysis import products
+
+    items = write_cost_inputs(tmp_path)
+    (tmp_path / "train_sigma.tsv").write_text("h:m:s\n0:00:01\n")
+    with pytest.raises(ValueError, match=r"train_sigma\.tsv has no column 's'"):
+        products.make_surrogate_cost(items, tmp_path / "speedup.csv", tmp_path / "c.csv", tmp_path / "c.html",
+                                     reference_label="FEM–DEM (150 spheres)", surrogate_label="FEM–ML (nn tangent)",
+                                     path_label="Path2")
+    (tmp_path / "summary.json").write_text('{"n_packings": 1}')
+    with pytest.raises(ValueError, match=r"summary\.json lacks 'packings'"):
+        tables.rve_preparation_seconds(tmp_path / "summary.json")
+    with pytest.raises(ValueError, match="no row for 'FEM–ML, other'"):
+        products.make_surrogate_cost(items[1:2], tmp_path / "speedup.csv", tmp_path / "c.csv", tmp_path / "c.html",
+                                     reference_label="FEM–DEM (150 spheres)", surrogate_label="FEM–ML, other",
+                                     path_label="Path2")
+
+
+CONFIG = {"output_dir": "results/x", "reference_material": "dem", "validation_path": "path2", "training_path": "path1",
+          "specimen": {"elements": [2, 2, 2], "symmetry": "quarter", "uniform_field": False}, "dem": {"n_spheres": 150}}
+
+
+def write_accuracy(tmp_path):
+    pd.DataFrame([{"method": "FEM–ML (nn tangent)", "top_force_max_rel_pct": 2.414,
+                   "stress_mae_heldout_kpa": 1.9512}]).to_csv(tmp_path / "accuracy.csv", index=False)
+    return tmp_path / "accuracy.csv"
+
+
+@pytest.mark.parametrize("uniform", [False, True])
+def test_headline_states_what_ran_from_the_reference_run(tmp_path, uniform):
+    """Quarter symmetry of a 2×2×2 specimen: 16 of its 64 Gauss points modelled; with a uniform
+    field one RVE stands for them."""
+    from granular_multiscale.analysis import products
+    from granular_multiscale.data import write_run
+
+    write_cost_inputs(tmp_path)
+    write_run(quarter_run(method="dem", uniform_field=int(uniform)), tmp_path / "path2.h5", {})
+    headline = products.make_headline(tmp_path / "speedup.csv", write_accuracy(tmp_path), tmp_path / "headline.json",
+                                      config=CONFIG, reference_label="FEM–DEM (150 spheres)",
+                                      surrogate_label="FEM–ML (nn tangent)", ablation_label=None,
+                                      reference_run=tmp_path / "path2.h5")
+    assert headline["gauss_points"] == 64 and headline["gauss_points_modelled"] == 16
+    assert headline["symmetry"] == "quarter" and headline["modelled_fraction"] == 0.25
+    assert headline["uniform_field"] is uniform and headline["mesh_elements"] == [1, 1, 2]
+    assert headline["material_points_evaluated"] == (1 if uniform else 16)
+    assert headline["surrogate_points_evaluated"] == 16
+    assert headline["display"]["top_force_max_rel_pct"] == "2.41 %"
+    assert headline["display"]["stress_mae_heldout_kpa"] == "1.95 kPa"
+    assert headline["display"]["reference_wall_time"] == "500 s (8.3 min)"
+    # without the run file, the same from the config
+    from_config = products.make_headline(tmp_path / "speedup.csv", tmp_path / "accuracy.csv", tmp_path / "h2.json",
+                                         config={**CONFIG, "specimen": {**CONFIG["specimen"], "uniform_field": uniform}},
+                                         reference_label="FEM–DEM (150 spheres)",
+                                         surrogate_label="FEM–ML (nn tangent)", ablation_label=None)
+    for key in ("gauss_points_modelled", "material_points_evaluated", "mesh_elements", "symmetry", "uniform_field"):
+        assert from_config[key] == headline[key], key

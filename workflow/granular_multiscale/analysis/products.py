@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -196,6 +196,45 @@ def fmt(value, digits: int = 3) -> str:
     return f"{value:.{digits}g}"
 
 
+# -- numbers as people read them (the front page prints these strings) -----------------
+
+
+def readable_number(value, digits: int = 3) -> str:
+    """``digits`` significant digits in plain notation with thousands separators, never an
+    exponent: 0.247 -> '0.247', 563.2 -> '563', 2660.3 -> '2,660', 1.2e5 -> '120,000'."""
+    if value is None:
+        return "n/a"
+    value = float(value)
+    if not np.isfinite(value):
+        return "n/a"
+    if value == 0:
+        return "0"
+    rounded = float(f"{value:.{digits}g}")
+    magnitude = int(np.floor(np.log10(abs(rounded))))
+    decimals = max(digits - 1 - magnitude, 0)
+    return f"{rounded:,.{decimals}f}"
+
+
+def readable_ratio(value, digits: int = 3) -> str:
+    """A speedup: '2,660×', '0.5×'."""
+    text = readable_number(value, digits)
+    return text if text == "n/a" else f"{text}×"
+
+
+def readable_duration(seconds) -> str:
+    """A wall time in seconds, with minutes (from 2 min) or hours (from 2 h) beside it:
+    0.247 -> '0.247 s', 563.2 -> '563 s (9.4 min)', 1.2e5 -> '120,000 s (33 h)'."""
+    if seconds is None or not np.isfinite(float(seconds)) or float(seconds) < 0:
+        return "n/a"
+    seconds = float(seconds)
+    text = f"{readable_number(seconds)} s"
+    if seconds >= 7200:
+        return f"{text} ({readable_number(seconds / 3600, 2)} h)"
+    if seconds >= 120:
+        return f"{text} ({readable_number(seconds / 60, 2)} min)"
+    return text
+
+
 def make_accuracy_table(run_files: Mapping[str, str], train_file, heldout_file, out_csv, out_html, *,
                         path_label: str) -> pd.DataFrame:
     """One row per run after the first (the reference) in ``run_files``."""
@@ -241,7 +280,7 @@ SPEEDUP_HEADERS = {
     "completed": "completed",
     "unloading_step": "unloading step",
     "reloading_step": "reloading step",
-    "rves": "number of RVEs / Gauss points",
+    "rves": "material points evaluated (RVEs)",
     "wall_time_s": "time (s)",
     "wall_time_h": "time (h)",
     "newton_iterations": "Newton iterations",
@@ -260,7 +299,10 @@ def make_speedup_outputs(run_files: Mapping[str, str], out_csv, out_html, *, pat
         note=(f"Rows from this run measured on {machine}: wall time of the FEM solve (load-step loop) read "
               f"from each run file; speedup = time per load step of {next(iter(run_files))} / that of the row "
               "(the whole-run ratio when both ran every step; a run with completed = no stopped early). "
-              "Grey rows: the paper's Table 4 (2000 RVEs of 1000 spheres on the authors' machine), for reference only."),
+              "Material points evaluated: the Gauss points of the modelled mesh (a quarter of them with "
+              "specimen.symmetry quarter), 1 for a reference run with specimen.uniform_field (one point stands "
+              "for all). Grey rows: the paper's Table 4 (2000 RVEs of 1000 spheres on the authors' machine), "
+              "for reference only. What making the surrogate cost is in the surrogate cost table."),
     )
     return table
 
@@ -288,15 +330,121 @@ def make_speed_vs_error(speedup_csv, accuracy_csv, out, settings: Mapping) -> Pa
     return figures.speed_vs_error(merged, out, errors=error_columns, figsize=_size(settings, "speed"), dpi=_dpi(settings))
 
 
+COST_HEADERS = {
+    "item": "item",
+    "kind": "kind",
+    "wall_time": "wall time",
+    "wall_time_s": "wall time (s)",
+    "wall_time_h": "wall time (h)",
+    "runs": "runs of the validation path",
+    "source": "read from",
+}
+
+# cost items: how each is read (see make_surrogate_cost)
+COST_READERS = {
+    "run": lambda path: tables.run_wall_time(data.read_run(path)),
+    "benchmark": tables.benchmark_seconds,
+    "rve_summary": tables.rve_preparation_seconds,
+}
+
+
+def _one_run_times(speedup_csv, reference_label: str, surrogate_label: str) -> tuple[float, float, bool]:
+    """Wall times of one reference and one surrogate run of the whole path, from the speedup
+    table; a surrogate run that stopped early counts at its time per load step (the speedup's
+    measure) times the reference's steps. Returns (t_ref, t_ml, t_ml is such an estimate)."""
+    speed = pd.read_csv(speedup_csv)
+    this = speed[speed["source"] == "this run"].set_index("method")
+    for label in (reference_label, surrogate_label):
+        if label not in this.index:
+            raise ValueError(f"speedup table {speedup_csv} has no row for {label!r} (rows: {list(this.index)})")
+    ref, ml = this.loc[reference_label], this.loc[surrogate_label]
+    t_ref, t_ml = float(ref["wall_time_s"]), float(ml["wall_time_s"])
+    estimated = str(ml["completed"]) != "yes"
+    if estimated:
+        t_ml = t_ml / max(int(ml["load_steps"]), 1) * int(ref["load_steps"])
+    return t_ref, t_ml, estimated
+
+
+def make_surrogate_cost(items: Sequence[tuple[str, str, str]], speedup_csv, out_csv, out_html, *,
+                        reference_label: str, surrogate_label: str, path_label: str) -> pd.DataFrame:
+    """The full cost of an answer: each step that makes the surrogate, their total, one run of
+    each method (from the speedup table) and the break-even number of FEM–ML runs.
+
+    ``items``: (what, how to read it, file) with how = 'run' (a run file's wall time, as in the
+    speedup table), 'benchmark' (a Snakemake benchmark TSV, column ``s``) or 'rve_summary'
+    (``rve/summary.json``)."""
+    costs = []
+    for what, how, path in items:
+        if how not in COST_READERS:
+            raise ValueError(f"cost item {what!r}: unknown kind {how!r} (one of {sorted(COST_READERS)})")
+        costs.append((what, COST_READERS[how](path), str(path)))
+    t_ref, t_ml, estimated = _one_run_times(speedup_csv, reference_label, surrogate_label)
+    table, numbers = tables.surrogate_cost_table(costs, reference=(reference_label, t_ref),
+                                                 surrogate=(surrogate_label, t_ml), path=path_label)
+    tables.write_csv(table, out_csv)
+    shown = table.copy()
+    shown.insert(2, "wall_time", [readable_duration(t) for t in table["wall_time_s"]])
+    n = numbers["break_even_runs"]
+    verdict = (f"Break-even: from {n} FEM–ML runs on, making the surrogate once and running it N times costs no "
+               f"more than N runs of {reference_label}: the smallest N with N·t_ML + cost ≤ N·t_ref, "
+               "N = ceil(cost / (t_ref − t_ML))." if n is not None else
+               f"{surrogate_label} is not faster than {reference_label} here, so the surrogate never pays back.")
+    tables.write_html_table(
+        shown, out_html, title=f"The full cost of an answer on {path_label}", headers=COST_HEADERS,
+        note=(f"Making the surrogate: every step before the first FEM–ML run, as measured in this workflow run "
+              "(run files: the FEM solve's wall time, as in the speedup table; benchmarks: the rule's whole wall "
+              "time; RVE preparation: the packings' consolidation time from rve/summary.json). "
+              + ("The FEM–ML time is an estimate for the whole path (it stopped early): its time per load step "
+                 "times the reference's steps. " if estimated else "")
+              + verdict),
+    )
+    return table
+
+
+def _cost_numbers(cost_csv) -> dict:
+    """The headline's numbers of the surrogate cost table."""
+    cost = pd.read_csv(cost_csv)
+    total = cost[cost["kind"] == "surrogate cost total"]
+    if total.empty:
+        raise ValueError(f"surrogate cost table {cost_csv} has no row of kind 'surrogate cost total'")
+    breaks = cost[cost["kind"] == "break-even"]
+    items = cost[cost["kind"] == "surrogate cost"]
+    return {
+        "surrogate_cost_s": float(total["wall_time_s"].iloc[0]),
+        "surrogate_cost_items": [{"item": str(r.item), "wall_time_s": float(r.wall_time_s)} for r in items.itertuples()],
+        "break_even_runs": int(breaks["runs"].iloc[0]) if not breaks.empty else None,
+    }
+
+
+def _reduction_from_config(config: Mapping) -> dict:
+    """What a run of this config models (for a headline made without the reference run file)."""
+    spec = config["specimen"]
+    elements = [int(n) for n in spec["elements"]]
+    quarter = spec.get("symmetry", "none") == "quarter"
+    mesh = [-(-elements[0] // 2), -(-elements[1] // 2), elements[2]] if quarter else elements
+    modelled = 8 * int(np.prod(mesh))
+    return {"specimen_elements": elements, "mesh_elements": mesh, "symmetry": spec.get("symmetry", "none"),
+            "modelled_fraction": 0.25 if quarter else 1.0, "uniform_field": bool(spec.get("uniform_field", False)),
+            "gauss_points_full_specimen": 8 * int(np.prod(elements)), "gauss_points_modelled": modelled,
+            "material_points_evaluated": 1 if spec.get("uniform_field", False) else modelled}
+
+
 def make_headline(speedup_csv, accuracy_csv, out, *, config: Mapping, reference_label: str,
-                  surrogate_label: str, ablation_label: str | None) -> dict:
-    """The numbers the report's front page states (JSON)."""
+                  surrogate_label: str, ablation_label: str | None, reference_run=None, cost_csv=None) -> dict:
+    """The numbers the report's front page states (JSON), and under ``display`` the same numbers
+    written as people read them (the front page prints those strings).
+
+    ``reference_run``: the reference run file of the validation path; what it modelled (symmetry,
+    uniform field, Gauss points of its mesh, material points evaluated) is read from it (without
+    it, from the config). ``cost_csv``: the surrogate cost table (:func:`make_surrogate_cost`)."""
     speed = pd.read_csv(speedup_csv)
     accuracy = pd.read_csv(accuracy_csv).set_index("method")
     this = speed[speed["source"] == "this run"].set_index("method")
     def acc(label, column):
         return float(accuracy.loc[label, column]) if label in accuracy.index else None
     elements = list(config["specimen"]["elements"])
+    reduction = (tables.model_reduction(data.read_run(reference_run)) if reference_run is not None
+                 else _reduction_from_config(config))
     headline = {
         "output_dir": config["output_dir"],
         "reference_material": config["reference_material"],
@@ -305,7 +453,15 @@ def make_headline(speedup_csv, accuracy_csv, out, *, config: Mapping, reference_
         "validation_path": config["validation_path"],
         "training_path": config["training_path"],
         "elements": elements,
+        # the full specimen's Gauss points; what ran: gauss_points_modelled, material_points_evaluated
         "gauss_points": int(8 * np.prod(elements)),
+        "mesh_elements": reduction["mesh_elements"],
+        "symmetry": reduction["symmetry"],
+        "modelled_fraction": reduction["modelled_fraction"],
+        "uniform_field": reduction["uniform_field"],
+        "gauss_points_modelled": reduction["gauss_points_modelled"],
+        "material_points_evaluated": reduction["material_points_evaluated"],
+        "surrogate_points_evaluated": int(this.loc[surrogate_label, "rves"]),
         "n_spheres": config["dem"]["n_spheres"] if config["reference_material"] == "dem" else None,
         "machine": tables.machine_description(),
         "reference_wall_time_s": float(this.loc[reference_label, "wall_time_s"]),
@@ -319,6 +475,47 @@ def make_headline(speedup_csv, accuracy_csv, out, *, config: Mapping, reference_
         "ablation": ablation_label,
         "ablation_top_force_max_rel_pct": acc(ablation_label, "top_force_max_rel_pct") if ablation_label else None,
         "ablation_stress_mae_heldout_kpa": acc(ablation_label, "stress_mae_heldout_kpa") if ablation_label else None,
+        "surrogate_cost_s": None,
+        "surrogate_cost_items": [],
+        "break_even_runs": None,
     }
+    if cost_csv is not None:
+        headline.update(_cost_numbers(cost_csv))
+    headline["display"] = headline_display(headline)
     write_json(headline, out)
     return headline
+
+
+def headline_display(h: Mapping) -> dict:
+    """The headline's numbers as the front page prints them."""
+    def pct(v):
+        return None if v is None else f"{readable_number(v)} %"
+
+    def kpa(v):
+        return None if v is None else f"{readable_number(v)} kPa"
+
+    n = h.get("break_even_runs")
+    return {
+        "speedup": readable_ratio(h["speedup"]),
+        "reference_wall_time": readable_duration(h["reference_wall_time_s"]),
+        "surrogate_wall_time": readable_duration(h["surrogate_wall_time_s"]),
+        "top_force_max_rel_pct": pct(h.get("top_force_max_rel_pct")),
+        "stress_mae_heldout_kpa": kpa(h.get("stress_mae_heldout_kpa")),
+        "ablation_top_force_max_rel_pct": pct(h.get("ablation_top_force_max_rel_pct")),
+        "ablation_stress_mae_heldout_kpa": kpa(h.get("ablation_stress_mae_heldout_kpa")),
+        "surrogate_cost": None if h.get("surrogate_cost_s") is None else readable_duration(h["surrogate_cost_s"]),
+        "surrogate_cost_items": [f"{item['item']} {readable_duration(item['wall_time_s'])}"
+                                 for item in h.get("surrogate_cost_items", [])],
+        "break_even_runs": None if n is None else f"{n:,}",
+    }
+
+
+def read_headline(path) -> dict | None:
+    """The headline JSON for the report's front page; None when the file does not exist yet."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except ValueError as error:
+        raise ValueError(f"headline file {path} is not valid JSON: {error}") from error

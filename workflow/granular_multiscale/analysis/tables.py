@@ -69,9 +69,52 @@ def first_step(phases: np.ndarray, label: str) -> int | None:
     return int(idx[0]) if idx.size else None
 
 
+# methods (run-file attr ``method``) whose driver builds a material set of one point per Gauss
+# point even under ``specimen.uniform_field`` (surrogate.fem_ml builds it with n_gauss_points);
+# the reference drivers (dem.run, scripts/run_fem_reference.py) build problem.n_material_points
+ALL_POINT_METHOD_PREFIXES = ("fem_ml",)
+
+
+def material_points_evaluated(ds: xr.Dataset) -> int:
+    """Material points the run evaluated (RVEs that ran, for FEM–DEM): the run file's attr
+    ``material_points`` when it has one; else 1 for a ``uniform_field`` run of a reference driver
+    (one point stands for every Gauss point); else the Gauss points of the modelled mesh
+    (``gp``, already reduced by ``symmetry: quarter``)."""
+    if "material_points" in ds.attrs:
+        return int(ds.attrs["material_points"])
+    uniform = bool(int(ds.attrs.get("uniform_field", 0)))
+    if uniform and not str(ds.attrs.get("method", "")).startswith(ALL_POINT_METHOD_PREFIXES):
+        return 1
+    return int(ds.sizes["gp"])
+
+
+def model_reduction(ds: xr.Dataset) -> dict:
+    """What of the specimen a run modelled, from its attrs (older files without them: the full
+    specimen): elements of the specimen and of the mesh, symmetry, modelled fraction, uniform
+    field, Gauss points of the full specimen and of the modelled mesh, material points evaluated."""
+    per_element = int(ds.attrs.get("gauss_points_per_element", 8))
+    gp_modelled = int(ds.sizes["gp"])
+    specimen = ds.attrs.get("specimen_elements")
+    specimen = [int(n) for n in np.atleast_1d(specimen)] if specimen is not None else None
+    mesh = ds.attrs.get("mesh_elements")
+    mesh = [int(n) for n in np.atleast_1d(mesh)] if mesh is not None else specimen
+    symmetry = str(ds.attrs.get("symmetry", "none"))
+    return {
+        "specimen_elements": specimen,
+        "mesh_elements": mesh,
+        "symmetry": symmetry,
+        "modelled_fraction": float(ds.attrs.get("modelled_fraction", 1.0)),
+        "uniform_field": bool(int(ds.attrs.get("uniform_field", 0))),
+        "gauss_points_full_specimen": per_element * int(np.prod(specimen)) if specimen else gp_modelled,
+        "gauss_points_modelled": gp_modelled,
+        "material_points_evaluated": material_points_evaluated(ds),
+    }
+
+
 def describe_run(ds: xr.Dataset, method: str, path: str, source: str = "this run") -> dict:
     """One row of the speedup table for a run file (``load_steps``: the steps it reached;
-    ``completed``: "no" for a FEM–ML run that stopped early, see ``metrics.is_partial``)."""
+    ``completed``: "no" for a FEM–ML run that stopped early, see ``metrics.is_partial``;
+    ``rves``: the material points it evaluated, see :func:`material_points_evaluated`)."""
     phases = phase_labels(ds)
     steps = metrics.steps_reached(ds)
     iterations = np.asarray(ds["newton_iterations"].values, dtype=float)
@@ -84,7 +127,7 @@ def describe_run(ds: xr.Dataset, method: str, path: str, source: str = "this run
         "completed": "no" if metrics.is_partial(ds) else "yes",
         "unloading_step": first_step(phases, "unloading"),
         "reloading_step": first_step(phases, "reloading"),
-        "rves": int(ds.sizes["gp"]),
+        "rves": material_points_evaluated(ds),
         "wall_time_s": wall,
         "wall_time_h": wall / 3600.0,
         "newton_iterations": int(iterations[1:].sum()),
@@ -175,6 +218,102 @@ def write_csv(table: pd.DataFrame, out: str | Path, float_format: str = "%.10g")
     with atomic_path(out) as tmp:
         table.to_csv(tmp, index=False, float_format=float_format)
     return Path(out)
+
+
+# --------------------------------------------------------------------------------------
+# the full cost of an answer: what making the surrogate cost, and when it pays back
+
+
+def benchmark_seconds(path: str | Path) -> float:
+    """Wall seconds of a rule from its Snakemake benchmark file (TSV, column ``s``; the mean
+    when the benchmark repeated the rule)."""
+    try:
+        table = pd.read_csv(path, sep="\t")
+    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as error:
+        raise ValueError(f"benchmark file {path}: {error}") from error
+    if "s" not in table.columns or table.empty:
+        raise ValueError(f"benchmark file {path} has no column 's' (wall seconds) or no row; columns {list(table.columns)}")
+    seconds = pd.to_numeric(table["s"], errors="coerce").to_numpy(dtype=float)
+    if not np.all(np.isfinite(seconds)) or np.any(seconds < 0):
+        raise ValueError(f"benchmark file {path}: column 's' holds {seconds.tolist()}, not wall seconds")
+    return float(seconds.mean())
+
+
+def rve_preparation_seconds(summary_file: str | Path) -> float:
+    """Consolidation wall time of the RVE packings from ``rve/summary.json`` (summed over the
+    packings: exact for one packing, an upper bound when several ran side by side)."""
+    import json
+
+    try:
+        summary = json.loads(Path(summary_file).read_text())
+        times = [float(p["wall_time"]) for p in summary["packings"]]
+    except (OSError, ValueError) as error:
+        raise ValueError(f"RVE summary {summary_file}: {error}") from error
+    except (KeyError, TypeError) as error:
+        raise ValueError(f"RVE summary {summary_file} lacks 'packings' with a 'wall_time' each ({error!r})") from error
+    if not times or not all(np.isfinite(t) and t >= 0 for t in times):
+        raise ValueError(f"RVE summary {summary_file}: packing wall times {times}")
+    return float(sum(times))
+
+
+def break_even_runs(cost_s: float, reference_s: float, surrogate_s: float) -> int | None:
+    """The smallest number N >= 1 of answers for which making the surrogate once and running it
+    N times costs no more than N reference runs: N·t_surrogate + cost <= N·t_reference, i.e.
+    ceil(cost / (t_reference − t_surrogate)). None when the surrogate run is not faster (it never
+    pays back)."""
+    import math
+
+    cost_s, reference_s, surrogate_s = float(cost_s), float(reference_s), float(surrogate_s)
+    if not all(np.isfinite(v) and v >= 0 for v in (cost_s, reference_s, surrogate_s)):
+        raise ValueError(f"break-even needs finite times >= 0: cost {cost_s}, reference {reference_s}, "
+                         f"surrogate {surrogate_s}")
+    saving = reference_s - surrogate_s
+    if saving <= 0:
+        return None
+    n = max(math.ceil(cost_s / saving), 1)
+    # the ratio's round-off must not cost one run: take N − 1 when it already satisfies the inequality
+    if n > 1 and (n - 1) * surrogate_s + cost_s <= (n - 1) * reference_s:
+        n -= 1
+    return n
+
+
+COST_COLUMNS = ("item", "kind", "wall_time_s", "wall_time_h", "runs", "source")
+
+
+def surrogate_cost_table(items: Sequence[tuple[str, float, str]], *, reference: tuple[str, float],
+                         surrogate: tuple[str, float], path: str) -> tuple[pd.DataFrame, dict]:
+    """The cost of making the surrogate and when it pays back.
+
+    ``items``: (what, wall seconds, where it was read) of each step that makes the surrogate;
+    ``reference`` / ``surrogate``: (label, wall seconds) of one run of the validation path
+    ``path`` each. Rows: the items (kind ``surrogate cost``), their total, the two runs (kind
+    ``one answer``), and at the break-even number N of FEM–ML runs (``runs``) the time of N
+    answers either way (kind ``break-even``). Returns the table and its numbers."""
+    if not items:
+        raise ValueError("surrogate cost table needs at least one cost item")
+    rows = [{"item": what, "kind": "surrogate cost", "wall_time_s": float(t), "runs": None, "source": source}
+            for what, t, source in items]
+    total = float(sum(r["wall_time_s"] for r in rows))
+    rows.append({"item": "total: making the surrogate", "kind": "surrogate cost total", "wall_time_s": total,
+                 "runs": None, "source": ""})
+    (ref_label, t_ref), (ml_label, t_ml) = reference, surrogate
+    rows.append({"item": f"one {ref_label} run of {path}", "kind": "one answer", "wall_time_s": float(t_ref),
+                 "runs": 1, "source": "speedup table"})
+    rows.append({"item": f"one {ml_label} run of {path}", "kind": "one answer", "wall_time_s": float(t_ml),
+                 "runs": 1, "source": "speedup table"})
+    n = break_even_runs(total, t_ref, t_ml)
+    if n is not None:
+        rows.append({"item": f"{n} answers by {ml_label}, making the surrogate included", "kind": "break-even",
+                     "wall_time_s": n * float(t_ml) + total, "runs": n, "source": ""})
+        rows.append({"item": f"{n} answers by {ref_label}", "kind": "break-even", "wall_time_s": n * float(t_ref),
+                     "runs": n, "source": ""})
+    table = pd.DataFrame(rows)
+    table["wall_time_h"] = table["wall_time_s"] / 3600.0
+    table["runs"] = pd.Series([r["runs"] for r in rows], dtype=object)
+    numbers = {"surrogate_cost_s": total, "break_even_runs": n, "reference_wall_time_s": float(t_ref),
+               "surrogate_wall_time_s": float(t_ml),
+               "cost_items": [{"item": what, "wall_time_s": float(t)} for what, t, _ in items]}
+    return table[list(COST_COLUMNS)], numbers
 
 
 # --------------------------------------------------------------------------------------
