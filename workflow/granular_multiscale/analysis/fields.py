@@ -18,9 +18,15 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-import pyvista as pv
 import xarray as xr
 from skfem import MeshHex
+
+from ..dem import vtk_order
+
+# Before pyvista: where YADE is loaded, pip's VTK must be loaded deep-bound or it binds to
+# YADE's VTK 9.1 and segfaults (ImportError if that already happened; docs/environment.md).
+vtk_order.before_vtk_import()
+import pyvista as pv  # noqa: E402
 
 from . import quantities as qty
 from .selection import resolve_steps

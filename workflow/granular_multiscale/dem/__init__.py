@@ -7,4 +7,5 @@ because ``from yade import *`` rebinds globals; nothing here imports yade at imp
 * ``material``   ``DemMaterialPointSet``: the material-point set the FEM solver calls
 * ``run``        what the ``rve`` and ``fem_dem`` rule scripts call
 * ``yade_env``   one-thread YADE start-up shared by all of them
+* ``vtk_order``  YADE and pip's VTK in one process (VTK first; imports neither itself)
 """

@@ -13,6 +13,8 @@ import os
 import subprocess
 import sys
 
+from . import vtk_order
+
 ENV_THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
@@ -26,6 +28,9 @@ def child_env() -> dict:
 def import_yade():
     """Import YADE with one thread; returns the ``Omega`` singleton. Call once per process."""
     os.environ.update(ENV_THREADS)
+    # YADE puts Debian's VTK 9.1 in the global symbol scope; pip's VTK modules loaded after it
+    # bind to that copy and crash. If VTK is partly loaded already, load all of it first.
+    vtk_order.before_yade_import()
     import yade  # noqa: F401  (side effects: plugin registration)
     from yade.wrapper import Omega
 
