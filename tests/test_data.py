@@ -5,12 +5,15 @@ import numpy as np
 import pytest
 
 from granular_multiscale.config import validate_config
-from granular_multiscale.data import REQUIRED_VARIABLES, DataFileError, read_run, run_config, write_run
+from granular_multiscale.data import (REQUIRED_VARIABLES, DataFileError, read_run, run_config, run_tangent,
+                                     tangent_variables, write_run)
 from granular_multiscale.fem.triaxial import TriaxialProblem
 from granular_multiscale.history import HIST, history_from_sequence
 from granular_multiscale.materials import make_material
 from granular_multiscale.paths import load_paths_from_config
-from granular_multiscale.tensors import COMP, TCOMP, tangent_from_upper
+from granular_multiscale.tensors import (COMP, TCOMP, TCOMP36, isotropic_elastic_tangent, symmetric_part,
+                                        tangent_asymmetry, tangent_from_full, tangent_from_upper, tangent_is_symmetric,
+                                        tangent_to_full, tangent_to_upper)
 
 
 @pytest.fixture(scope="module")
@@ -37,6 +40,11 @@ def test_round_trip_keeps_every_value_and_label(run, tmp_path):
     assert back.stress.attrs["units"] == "Pa" and back.top_force.attrs["units"] == "N"
     assert run_config(back) == config
     assert list(back.phase.values[[0, 1, 10, 16]]) == ["initial", "loading", "unloading", "reloading"]
+    # a symmetric tangent (elastoplastic, DEM) keeps the 21-entry layout, labelled as complete
+    assert "tangent_full" not in back and "tcomp36" not in back.coords
+    assert back.attrs["tangent_symmetric"] == 1 and back.attrs["tangent_variable"] == "tangent"
+    assert back.attrs["tangent_asymmetry"] <= 1e-10
+    np.testing.assert_array_equal(run_tangent(back), tangent_from_upper(back.tangent.values))
 
 
 def test_contract_contents_are_consistent(run):
@@ -115,3 +123,43 @@ def test_non_finite_stress_is_reported(run, tmp_path):
     bad.to_netcdf(path, engine="h5netcdf", invalid_netcdf=True)
     with pytest.raises(DataFileError, match=r"nan\.h5: variable 'stress' holds non-finite values"):
         read_run(path)
+
+
+def test_full_tangent_helpers_round_trip():
+    rng = np.random.default_rng(3)
+    D = rng.normal(size=(2, 3, 6, 6))
+    np.testing.assert_array_equal(tangent_from_full(tangent_to_full(D)), D)
+    assert [TCOMP36[6 * I + J] for I, J in ((0, 0), (0, 2), (2, 0), (5, 4))] == ["1111", "1133", "3311", "1213"]
+    assert set(TCOMP) <= set(TCOMP36) and len(set(TCOMP36)) == 36
+    sym = symmetric_part(D)
+    np.testing.assert_array_equal(sym, np.swapaxes(sym, -1, -2))
+    E = isotropic_elastic_tangent(5e7, 0.3)
+    assert tangent_asymmetry(E) == 0.0 and tangent_is_symmetric(E) and tangent_asymmetry(np.zeros((6, 6))) == 0.0
+    E[0, 1] *= 1 + 1e-14  # round-off: still symmetric
+    assert tangent_is_symmetric(E)
+    E[0, 1] *= 1 + 1e-6
+    assert not tangent_is_symmetric(E) and tangent_asymmetry(E) == pytest.approx(1e-6 * E[0, 1] / E.max(), rel=1e-6)
+
+
+def test_tangent_variables_take_older_checkpoint_records():
+    """A run resumed from a checkpoint written before issue 13 holds 21-entry records for its first steps."""
+    D = isotropic_elastic_tangent(5e7, 0.3) + np.diag([0, 0, 0, 0, 0, 1e5])
+    skew = D.copy()
+    skew[0, 3] += 2e5
+    old = np.broadcast_to(tangent_to_upper(D), (4, 21))
+    variables, attrs = tangent_variables([old, np.broadcast_to(skew, (4, 6, 6))])
+    assert attrs["tangent_symmetric"] == 0
+    dims, values, units, _ = variables["tangent_full"]
+    assert dims == ("step", "gp", "tcomp36") and units == "Pa"
+    np.testing.assert_array_equal(tangent_from_full(values), np.stack([np.broadcast_to(m, (4, 6, 6)) for m in (D, skew)]))
+    np.testing.assert_array_equal(variables["tangent"][1][1], np.broadcast_to(tangent_to_upper(symmetric_part(skew)), (4, 21)))
+
+
+def test_run_tangent_reads_files_without_tangent_full(run, tmp_path):
+    """Files written before tangent_full existed (no tangent_* attrs) still give their 6×6 tangents."""
+    config, ds = run
+    old = ds.copy()
+    for key in ("tangent_symmetric", "tangent_asymmetry", "tangent_variable"):
+        old.attrs.pop(key, None)
+    back = read_run(write_run(old, tmp_path / "old.h5", config))
+    np.testing.assert_array_equal(run_tangent(back), tangent_from_upper(ds.tangent.values))

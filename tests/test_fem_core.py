@@ -160,3 +160,113 @@ def test_from_config_reads_specimen_and_newton():
     assert problem.n_gauss_points == 48
     assert problem.platen == "smooth" and problem.newton.tolerance == 1e-9
     np.testing.assert_allclose(problem.initial_stress, [-2e5, -2e5, -2e5, 0, 0, 0])
+
+
+# -- the tangent in the run file (issue 13): what the solver used, without loss -------------------------------------
+class _LinearSkew:
+    """σ = σ0 + D_i · engineering(ε), D_i a known constant per point; not symmetric unless `skew` is 0.
+
+    Odd points are nearly incompressible (ν = 0.45: smallest/largest Mandel eigenvalue 0.07), even
+    ones ν = 0.25 (0.4), so an eigenvalue floor of 0.2 repairs the odd ones only."""
+
+    @staticmethod
+    def tangents(n, skew=1.0):
+        from granular_multiscale.tensors import isotropic_elastic_tangent
+
+        A = np.zeros((6, 6))
+        A[0, 2], A[2, 0], A[3, 5], A[1, 4] = 4e6, -3e6, 2e6, 1e6
+        return np.stack([isotropic_elastic_tangent(5e7, 0.45 if i % 2 else 0.25) + skew * A for i in range(n)])
+
+    @classmethod
+    def make(cls, n, initial_stress, skew=1.0):
+        from granular_multiscale.materials.base import MaterialPointSet
+        from granular_multiscale.tensors import engineering
+
+        D = cls.tangents(n, skew)
+
+        class Material(MaterialPointSet):
+            method = "linear_skew"
+
+            def evaluate(self, strain, need_tangent=True):
+                strain = self._check_strain(strain)
+                stress = initial_stress + np.einsum("nij,nj->ni", D, engineering(strain))
+                return stress, (D.copy() if need_tangent else None)
+
+            def commit(self, strain=None):
+                pass
+
+            def get_state(self):
+                return {}
+
+            def set_state(self, state):
+                pass
+
+        return Material(n)
+
+
+def _skew_run(tmp_path, skew=1.0, repair="none", floor=1e-3):
+    from granular_multiscale.data import read_run, write_run
+
+    problem = TriaxialProblem(elements=(1, 1, 1), platen="smooth",
+                              newton=NewtonSettings(tangent_repair=repair, tangent_floor=floor))
+    material = _LinearSkew.make(problem.n_gauss_points, problem.initial_stress, skew)
+    ds = problem.run(material, LoadPath("p", ((2, 1e-3),)), progress=False)
+    return ds, read_run(write_run(ds, tmp_path / "run.h5"))
+
+
+def test_non_symmetric_tangent_round_trips_whole_through_the_run_file(tmp_path):
+    """A tangent that is not symmetric (like FEM–ML's autodiff Jacobian) is stored in all 36 entries;
+    the 21-entry `tangent` is the upper triangle of its symmetric part, and the file says so.
+    (Before issue 13 the file held only the upper triangle of D: its lower triangle was lost.)"""
+    from granular_multiscale.data import run_tangent
+    from granular_multiscale.tensors import TCOMP, TCOMP36, tangent_to_upper
+
+    ds, back = _skew_run(tmp_path)
+    D = _LinearSkew.tangents(8)
+    assert back.attrs["tangent_symmetric"] == 0 and back.attrs["tangent_variable"] == "tangent_full"
+    assert back.attrs["tangent_asymmetry"] == pytest.approx(7e6 / D[0].max())  # |A[0,2] - A[2,0]| / max|D| at ν = 0.25
+    assert list(back.tcomp36.values) == list(TCOMP36) and list(back.tcomp.values) == list(TCOMP)
+    assert TCOMP36[2] == "1133" and TCOMP36[12] == "3311"  # row by row: entry I*6 + J is D[I, J]
+    assert back.tangent_full.dims == ("step", "gp", "tcomp36") and back.tangent_full.attrs["units"] == "Pa"
+    full = run_tangent(back)
+    np.testing.assert_array_equal(full, np.broadcast_to(D, (3, 8, 6, 6)))  # every step, exactly
+    assert full[0, 0, 0, 2] == D[0, 0, 2] != D[0, 2, 0] == full[0, 0, 2, 0]
+    np.testing.assert_array_equal(back.tangent_full.sel(tcomp36="3311").values, D[None, :, 2, 0].repeat(3, axis=0))
+    np.testing.assert_array_equal(back.tangent.values, tangent_to_upper(0.5 * (full + np.swapaxes(full, -1, -2))))
+    assert "SYMMETRIC PART" in back.tangent.attrs["description"] and "tangent_full" in back.tangent.attrs["description"]
+    assert "as the material set returned it" in back.tangent_full.attrs["description"]
+    for name in ds.variables:
+        np.testing.assert_array_equal(back[name].values, ds[name].values, err_msg=name)
+
+
+def test_symmetric_tangent_keeps_the_21_entry_layout(tmp_path):
+    from granular_multiscale.data import run_tangent
+
+    _, back = _skew_run(tmp_path, skew=0.0)
+    assert "tangent_full" not in back and "tcomp36" not in back.coords
+    assert back.attrs["tangent_symmetric"] == 1 and back.attrs["tangent_variable"] == "tangent"
+    assert back.attrs["tangent_asymmetry"] == 0.0
+    assert "hold all of it" in back.tangent.attrs["description"]
+    np.testing.assert_array_equal(run_tangent(back), np.broadcast_to(_LinearSkew.tangents(8, 0.0), (3, 8, 6, 6)))
+
+
+def test_repaired_tangent_is_the_one_the_file_holds(tmp_path):
+    """With newton.tangent_repair the solver uses the repaired tangent: the file holds that one (the
+    floored symmetric matrix at repaired points, the material's own, skew part included, elsewhere)
+    and its description says so."""
+    from granular_multiscale.data import run_tangent
+    from granular_multiscale.materials.wrappers import eig_floor
+
+    ds, back = _skew_run(tmp_path, repair="eig_floor", floor=0.2)
+    D = _LinearSkew.tangents(8)
+    repaired, mask = eig_floor(D, 0.2)
+    np.testing.assert_array_equal(mask, np.arange(8) % 2 == 1)  # the odd (ν = 0.45) points only
+    np.testing.assert_array_equal(back.tangent_repaired_points.values, 4)
+    full = run_tangent(back)
+    np.testing.assert_allclose(full, np.broadcast_to(repaired, (3, 8, 6, 6)), rtol=1e-12)  # LAPACK round-off
+    np.testing.assert_array_equal(full[:, 0::2], np.broadcast_to(D[0::2], (3, 4, 6, 6)))  # skew part kept
+    np.testing.assert_allclose(full[:, 1::2], np.swapaxes(full[:, 1::2], -1, -2), rtol=0, atol=1e-14 * np.abs(full).max())
+    assert back.attrs["tangent_symmetric"] == 0
+    for name in ("tangent", "tangent_full"):
+        description = back[name].attrs["description"]
+        assert "after newton.tangent_repair 'eig_floor' (eigenvalue floor 0.2" in description, name

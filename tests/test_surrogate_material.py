@@ -301,3 +301,32 @@ def test_state_roundtrip_and_errors(models):
     bad[2, 1] = np.nan
     with pytest.raises(MaterialPointError, match=r"Gauss points \[2\]"):
         a.evaluate(bad)
+
+
+def test_fem_ml_run_file_holds_the_autodiff_tangent_whole(models, tmp_path):
+    """Issue 13: the autodiff tangent (NNσ's exact Jacobian) is not symmetric; the run file must give
+    back the tangent the solver had at every converged state, all 36 entries, not its upper triangle."""
+    from granular_multiscale.data import read_run, run_tangent, write_run
+    from granular_multiscale.fem.triaxial import TriaxialProblem
+    from granular_multiscale.paths import LoadPath
+    from granular_multiscale.tensors import tangent_to_upper
+
+    sigma, _ = models
+    problem = TriaxialProblem(elements=(1, 1, 1), platen="smooth")
+    ds = problem.run(SurrogateMaterial(problem.n_gauss_points, sigma, tangent="autodiff"),
+                     LoadPath("short", ((3, 3e-4),)), progress=False)
+    back = read_run(write_run(ds, tmp_path / "fem_ml.h5"))
+    assert back.attrs["method"] == "fem_ml_autodiff" and back.attrs["tangent_symmetric"] == 0
+    assert int(back.cutbacks.sum()) == 0  # so the replay below commits the same states
+    full = run_tangent(back)
+    np.testing.assert_array_equal(back.tangent_full.values, ds.tangent_full.values)  # the file round trip is exact
+    # ... and it is the solver's tangent: replay the converged strains through a fresh material
+    replay = SurrogateMaterial(problem.n_gauss_points, sigma, tangent="autodiff")
+    for k in range(back.sizes["step"]):
+        _, D = replay.evaluate(back.strain.values[k])
+        replay.commit()
+        np.testing.assert_allclose(full[k], D, rtol=1e-12, atol=1e-12 * np.abs(D).max(), err_msg=f"step {k}")
+    lower_lost = np.abs(full - np.swapaxes(full, -1, -2)).max()
+    assert lower_lost > 1e-3 * np.abs(full).max()  # the 21 upper entries alone would not give it back
+    np.testing.assert_allclose(back.tangent.values, tangent_to_upper(0.5 * (full + np.swapaxes(full, -1, -2))),
+                               rtol=1e-15, atol=0)

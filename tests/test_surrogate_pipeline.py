@@ -8,11 +8,31 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from granular_multiscale.data import read_run
+from granular_multiscale.data import read_run, run_config, run_tangent
 from granular_multiscale.surrogate.dataset import read_dataset, split_of
 from granular_multiscale.surrogate.models import SurrogateModel
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def recount_out_of_range(run, model):
+    """Per step: Gauss points whose converged features [ε, φ of the model] leave the training
+    min–max saved with the model, and the largest excess in training ranges — recomputed from the
+    run file's strain and history, by the rule SurrogateMaterial documents: a margin of
+    surrogate.out_of_range_tolerance × the range plus 1e-9 × the features' magnitude (round-off)."""
+    names = list(model.feature_names)
+    lo = model.network.x_min.detach().numpy().astype(float)
+    hi = model.network.x_max.detach().numpy().astype(float)
+    strain = run.strain.transpose("step", "gp", "comp").values
+    history = run.history.transpose("step", "gp", "hist").sel(hist=list(model.history)).values
+    x = np.concatenate([strain, history], axis=-1)
+    assert x.shape[-1] == len(names) == 6 + len(model.history)
+    span = hi - lo
+    magnitude = np.maximum(np.abs(lo), np.abs(hi))
+    magnitude[:6] = max(span[:6].max(), magnitude[:6].max())  # one scale for the six strains
+    margin = run_config(run)["surrogate"]["out_of_range_tolerance"] * span + 1e-9 * magnitude
+    excess = (np.maximum(lo - margin - x, 0) + np.maximum(x - hi - margin, 0)) / np.where(span > 0, span, 1.0)
+    return (excess > 0).any(axis=-1).sum(axis=1), excess.max(axis=(1, 2)), excess
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +80,27 @@ def test_fem_ml_runs_and_metrics(tiny_chain):
     assert ml.attrs["method"].startswith("fem_ml_") and "nohist" not in ml.attrs["method"]
     assert nohist.attrs["method"].startswith("fem_ml_nohist_")
     assert ml.sizes["step"] == reference.sizes["step"] and np.isfinite(ml.stress.values).all()
-    assert "out_of_range_points" in ml and (ml.out_of_range_points.values >= 0).all()
+    # the counts in the files are the points whose inputs leave the training range saved with the model
+    train = read_dataset(out / "dataset/train.h5")
+    for run in (ml, nohist):
+        assert int(run.cutbacks.sum()) == 0  # else the material's history saw sub-steps the file does not hold
+        model = SurrogateModel.load(run.attrs["surrogate_sigma_model"])
+        np.testing.assert_array_equal(model.network.x_min.numpy(), train.feature_min.sel(feature=list(model.feature_names)))
+        points, largest, excess = recount_out_of_range(run, model)
+        np.testing.assert_array_equal(run.out_of_range_points.values, points, err_msg=run.attrs["method"])
+        np.testing.assert_allclose(run.out_of_range_excess.values, largest, rtol=1e-9, atol=0)
+        assert points[0] == 0  # the consolidated state is the training data's own
+        # measured (issue 13): all 16 points out at every later step through strain_12 — the reference keeps
+        # eps12 = 0 to round-off on this symmetric mesh (training range ±4e-18), FEM–ML reaches 3–5e-5 — and
+        # the other features only at the last step or so (eps33 past the reference's 4.5 %)
+        assert (points[1:] > 0).all()
+    # the tangent the solver used, whole: autodiff (NNσ's exact Jacobian, not symmetric) in tangent_full;
+    # symmetric tangents (the reference's, ND's) keep the 21-entry layout
+    assert ml.attrs["method"] == "fem_ml_autodiff" and ml.attrs["tangent_symmetric"] == 0 and "tangent_full" in ml
+    full = run_tangent(ml)
+    assert np.abs(full - np.swapaxes(full, -1, -2)).max() > 1e-3 * np.abs(full).max()
+    for symmetric in (reference, read_run(out / "fem_ml_nn/path2.h5")):
+        assert symmetric.attrs["tangent_symmetric"] == 1 and "tangent_full" not in symmetric
     # the surrogate starts where the reference starts (anchored initial state): same consolidated force
     assert ml.top_force.values[0] == pytest.approx(reference.top_force.values[0], rel=1e-6)
     curves = pd.read_csv(out / "tables/fem_ml_curve_errors.csv")
@@ -69,8 +109,13 @@ def test_fem_ml_runs_and_metrics(tiny_chain):
     # the numbers in the table are those of the files
     err = np.abs(ml.top_force.values - reference.top_force.values)
     assert force.loc[("fem_ml", "path2"), "max_abs_error"] == pytest.approx(err.max())
-    # even 16 Gauss points and seconds of training follow the reference within a fraction of its peak
-    assert force.loc[("fem_ml", "path1"), "max_error_percent_of_peak"] < 25.0
+    # even 16 Gauss points and seconds of training follow the reference within a few % of its peak force.
+    # Measured (issue 13; deterministic, the same in repeated runs of this chain): largest top-force error
+    # 3.33 % (fem_ml, path1, the training path), 3.38 % (fem_ml, path2), 3.22 / 3.07 % (fem_ml_nohist);
+    # the bound, about twice that, catches a real regression (before, 25 % let almost anything pass)
+    for run in ("fem_ml", "fem_ml_nohist"):
+        for path in ("path1", "path2"):
+            assert force.loc[(run, path), "max_error_percent_of_peak"] < 7.0, (run, path)
     newton = pd.read_csv(out / "tables/fem_ml_newton_iterations.csv")
     assert {"iterations_nn", "iterations_autodiff", "iterations_reference"} <= set(newton.columns)
     assert len(newton) == reference.sizes["step"]

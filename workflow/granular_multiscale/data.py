@@ -5,6 +5,8 @@ Coordinates
     gp     Gauss point, index = element * 8 + quadrature point
     comp   Voigt labels "11","22","33","23","13","12" (tensors.COMP)
     tcomp  21 labels of the upper triangle of the 6×6 tangent (tensors.TCOMP)
+    tcomp36  36 labels of the full 6×6 tangent, row by row (tensors.TCOMP36); only in a run
+           whose tangent is not symmetric
     hist   "phi1","phi2","phi3" (history.HIST)
     node, xyz ("x","y","z"), iteration (Newton iteration within a step)
 
@@ -12,12 +14,24 @@ Variables (units in each variable's attrs)
     strain(step,gp,comp)        total small strain, tensorial shear, tension positive
     stress(step,gp,comp)        Pa, tension positive
     tangent(step,gp,tcomp)      Pa, upper triangle of dσ/d(engineering ε) at the converged state
+                                (of its symmetric part ½(D + Dᵀ) when the tangent is not symmetric)
+    tangent_full(step,gp,tcomp36)  Pa, only when the tangent is not symmetric: all of it
     history(step,gp,hist)       φ1–φ3 of the converged strains
     gp_position(gp,xyz), node_position(node,xyz), displacement(step,node,xyz)   m
     axial_strain(step)          compression positive
     top_force(step)             N, tension positive (= ∫σzz over the top face)
     volumetric_strain(step)     tension positive
     newton_iterations(step), residual_norm(step,iteration), cutbacks(step), wall_time(step), phase(step)
+
+Tangents. The file holds the tangent the solver used at each converged state (after
+``newton.tangent_repair`` where configured), without loss: a symmetric one (to round-off,
+``tensors.SYMMETRY_RTOL``: DEM, elastoplastic, elastic, ND) in its 21 entries ``tangent``; one
+that is not (FEM–ML with the autodiff tangent: the exact Jacobian of NNσ) also in all 36,
+``tangent_full``, and then ``tangent`` is the upper triangle of its symmetric part — what a
+symmetric representation (ND's 21 targets, positive-definiteness checks) should see. Attrs
+``tangent_symmetric`` (1/0), ``tangent_asymmetry`` (largest max|D − Dᵀ|/max|D|) and
+``tangent_variable`` (the variable holding the solver's tangent) say which;
+:func:`run_tangent` returns the 6×6 tangents of any run file, old or new.
 
 Global attrs: ``method`` (what sat at the Gauss points), ``config`` (YAML of the config that
 produced the file), ``sign_convention``.
@@ -32,6 +46,8 @@ import xarray as xr
 import yaml
 
 from .atomic import atomic_path
+from .tensors import SYMMETRY_RTOL, TCOMP36, symmetric_part, tangent_asymmetry, tangent_from_full, \
+    tangent_from_upper, tangent_to_full, tangent_to_upper
 
 ENGINE = "h5netcdf"
 
@@ -103,3 +119,52 @@ def run_config(ds: xr.Dataset) -> dict | None:
     """The config stored in a run file's attrs (None if absent)."""
     text = ds.attrs.get("config")
     return yaml.safe_load(text) if text else None
+
+
+# -- tangents -------------------------------------------------------------------------------
+def _as_matrices(tangents) -> np.ndarray:
+    """Per-step tangents [gp, 6, 6] (or [gp, 21], a record of an older checkpoint) -> [step, gp, 6, 6]."""
+    steps = [np.asarray(t, dtype=float) for t in tangents]
+    return np.stack([tangent_from_upper(t) if t.shape[-1] == 21 else t for t in steps])
+
+
+def tangent_variables(tangents, used: str = "as the material set returned it") -> tuple[dict, dict]:
+    """The run file's tangent variables for the tangents the solver used, per step [gp, 6, 6].
+
+    Returns ({name: (dims, values, units, description)}, global attrs): ``tangent`` alone when
+    every tangent is symmetric to round-off, else ``tangent`` (upper triangle of the symmetric
+    part) and ``tangent_full`` (all 36 entries; the caller adds the coordinate
+    ``tcomp36 = tensors.TCOMP36``). `used` says where the tangent comes from (e.g. after a
+    tangent repair) and goes into the descriptions."""
+    D = _as_matrices(tangents)
+    asymmetry = tangent_asymmetry(D)
+    symmetric = asymmetry <= SYMMETRY_RTOL
+    what = (f"the Voigt tangent D = d(stress)/d(engineering strain) of the converged state as the solver had it "
+            f"(the stiffness of the next step's predictor), {used}")
+    variables = {}
+    if symmetric:
+        variables["tangent"] = (("step", "gp", "tcomp"), tangent_to_upper(D), "Pa",
+                                f"upper triangle of {what}; symmetric (relative asymmetry {asymmetry:.1e} <= "
+                                f"{SYMMETRY_RTOL:.0e}), so these 21 entries hold all of it")
+    else:
+        variables["tangent"] = (("step", "gp", "tcomp"), tangent_to_upper(symmetric_part(D)), "Pa",
+                                f"upper triangle of the SYMMETRIC PART (D + D^T)/2 of {what}; D is not symmetric "
+                                f"(largest relative asymmetry {asymmetry:.3g}): D itself is tangent_full")
+        variables["tangent_full"] = (("step", "gp", "tcomp36"), tangent_to_full(D), "Pa",
+                                     f"{what}; not symmetric (largest relative asymmetry {asymmetry:.3g}), all 36 "
+                                     "entries row by row: tcomp36 'IJ' (Voigt pairs I, J) is D[I, J]")
+    attrs = {"tangent_symmetric": int(symmetric), "tangent_asymmetry": asymmetry,
+             "tangent_variable": "tangent" if symmetric else "tangent_full"}
+    return variables, attrs
+
+
+def run_tangent(ds: xr.Dataset) -> np.ndarray:
+    """[step, gp, 6, 6]: the tangent the solver used, from ``tangent_full`` when the run has it,
+    else the 21 entries of ``tangent`` (a symmetric tangent, or a file written before
+    ``tangent_full`` existed, whose lower triangle is lost)."""
+    if "tangent_full" in ds:
+        full = ds["tangent_full"].transpose("step", "gp", "tcomp36")
+        if [str(c) for c in full.tcomp36.values] != list(TCOMP36):
+            raise DataFileError(f"coordinate 'tcomp36' is {list(full.tcomp36.values)}, expected {list(TCOMP36)}")
+        return tangent_from_full(full.values)
+    return tangent_from_upper(ds["tangent"].transpose("step", "gp", "tcomp").values)

@@ -57,10 +57,11 @@ import numpy as np
 import xarray as xr
 
 from ..atomic import atomic_path
+from ..data import tangent_variables
 from ..history import HIST, history_from_sequence
 from ..materials.wrappers import TangentRepair, UniformField
 from ..paths import LoadPath
-from ..tensors import COMP, TCOMP, tangent_to_upper
+from ..tensors import COMP, TCOMP, TCOMP36
 from .assembly import POINTS_PER_ELEMENT, GaussPointOperators
 from .mesh import box_mesh, face_nodes, lateral_facets
 from .newton import (
@@ -355,7 +356,7 @@ class TriaxialProblem:
 
             records["strain"].append(result.strain)
             records["stress"].append(result.stress)
-            records["tangent"].append(tangent_to_upper(result.tangent))
+            records["tangent"].append(np.array(result.tangent, dtype=float))  # all 36 entries (data.tangent_variables)
             records["displacement"].append(self.ops.nodal(u))
             records["axial_strain"].append(axial[step])
             records["top_force"].append(self.top_force(result.residual))
@@ -395,11 +396,18 @@ class TriaxialProblem:
         for k, r in enumerate(rec["residual_norm"]):
             residuals[k, : len(r)] = r
         step = np.arange(n_steps)
+        repair = self.newton.tangent_repair
+        tangent_vars, tangent_attrs = tangent_variables(rec["tangent"], (
+            "as the material set returned it" if repair == "none" else
+            f"after newton.tangent_repair '{repair}' (eigenvalue floor {self.newton.tangent_floor:g} x the largest): "
+            "points whose tangent was repaired (tangent_repaired_points per step) hold the floored symmetric "
+            "matrix, the others the material's own tangent"))
         coords = {
             "step": step,
             "gp": np.arange(self.n_gauss_points),
             "comp": list(COMP),
             "tcomp": list(TCOMP),
+            **({"tcomp36": list(TCOMP36)} if "tangent_full" in tangent_vars else {}),
             "hist": list(HIST),
             "node": np.arange(self.mesh.p.shape[1]),
             "xyz": ["x", "y", "z"],
@@ -408,8 +416,7 @@ class TriaxialProblem:
         v = {
             "strain": (("step", "gp", "comp"), strain, "1", "total small strain, tensorial shear, tension positive"),
             "stress": (("step", "gp", "comp"), np.asarray(rec["stress"]), "Pa", "Cauchy stress, tension positive"),
-            "tangent": (("step", "gp", "tcomp"), np.asarray(rec["tangent"]), "Pa",
-                        "upper triangle of the Voigt tangent d(stress)/d(engineering strain) of the converged state"),
+            **tangent_vars,  # tangent, and tangent_full when it is not symmetric
             "history": (("step", "gp", "hist"), history_from_sequence(strain), "1",
                         "history variables phi1-phi3 of the converged strains"),
             "gp_position": (("gp", "xyz"), self.gp_positions, "m", "Gauss point coordinates (gp = element*8 + q)"),
@@ -474,6 +481,7 @@ class TriaxialProblem:
                 "newton_line_search": int(self.newton.line_search),
                 "newton_tangent_every": self.newton.tangent_every,
                 "newton_tangent_repair": self.newton.tangent_repair,
+                **tangent_attrs,
                 "gauss_points_per_element": POINTS_PER_ELEMENT,
             },
         )

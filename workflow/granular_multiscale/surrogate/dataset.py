@@ -160,7 +160,9 @@ def build_dataset(run: xr.Dataset, train_fraction: float, seed: int, source: str
             "strain": (("step", "gp", "comp"), strain, {"units": "1", "long_name": "total strain, tensorial shear"}),
             "history": (("step", "gp", "hist"), history, {"units": "1", "long_name": "history variables φ1–φ3 of the converged strain sequence"}),
             "stress": (("step", "gp", "comp"), stress, {"units": "Pa", "long_name": "Cauchy stress, tension positive"}),
-            "tangent": (("step", "gp", "tcomp"), tangent, {"units": "Pa", "long_name": "upper triangle of the 6×6 Voigt tangent on engineering strain"}),
+            "tangent": (("step", "gp", "tcomp"), tangent, {"units": "Pa", "long_name": "upper triangle of the 6×6 Voigt tangent on engineering strain" + (
+                # a run whose tangent is not symmetric stores its symmetric part here (data module)
+                "; the symmetric part of the run's non-symmetric tangent (tangent_full)" if "tangent_full" in run else "")}),
             "feature_min": (("feature",), f_min, {"long_name": "minimum of each feature over the training points"}),
             "feature_max": (("feature",), f_max, {"long_name": "maximum of each feature over the training points"}),
             "stress_min": (("comp",), s_min, {"units": "Pa"}),
