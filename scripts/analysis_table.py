@@ -19,10 +19,16 @@ def main(sm) -> None:
             table = products.make_accuracy_table(dict(zip(p.labels, sm.input.runs)), sm.input.train,
                                                  sm.input.heldout, sm.output.csv, sm.output.html,
                                                  path_label=p.path_label)
+        elif p.kind == "surrogate_cost":
+            items = [(what, how, path) for (what, how), path in zip(p.cost_items, sm.input.cost_files)]
+            table = products.make_surrogate_cost(items, sm.input.speedup, sm.output.csv, sm.output.html,
+                                                 reference_label=p.reference_label,
+                                                 surrogate_label=p.surrogate_label, path_label=p.path_label)
         elif p.kind == "headline":
             table = products.make_headline(sm.input.speedup, sm.input.accuracy, sm.output[0], config=sm.config,
                                            reference_label=p.reference_label, surrogate_label=p.surrogate_label,
-                                           ablation_label=p.ablation_label)
+                                           ablation_label=p.ablation_label, reference_run=sm.input.reference,
+                                           cost_csv=sm.input.cost)
         else:
             raise ValueError(f"unknown table kind {p.kind!r}")
         logger.info("%s", table)

@@ -93,3 +93,102 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     assert f"Speedup {headline['speedup']:.3g}×" in description
     assert f"Held-out stress MAE {headline['stress_mae_heldout_kpa']:.3g} kPa" in description
     assert "System Message" not in description  # reStructuredText rendered without errors
+
+
+# -- the front page, whatever builds the report (fast: no job runs) ---------------------
+
+API_REPORT = """
+import sys
+from pathlib import Path
+from snakemake.api import SnakemakeApi
+from snakemake.report.html_reporter import ReportSettings
+from snakemake.settings.types import ConfigSettings, DAGSettings, OutputSettings, ResourceSettings
+root, out, report = map(Path, sys.argv[1:4])
+with SnakemakeApi(OutputSettings()) as api:
+    workflow = api.workflow(resource_settings=ResourceSettings(), snakefile=root / "Snakefile", workdir=root,
+                            config_settings=ConfigSettings(configfiles=[root / "config/tiny.yaml"],
+                                                           config={"output_dir": str(out), "reference_material": sys.argv[4]}))
+    # a target with no report() output upstream: the report holds the front page only
+    workflow.dag(DAGSettings(targets={str(out / "rve/summary.json")})).create_report(
+        reporter="html", report_settings=ReportSettings(path=report))
+"""
+
+
+def headline_file(out, **changes):
+    from granular_multiscale.analysis.products import headline_display
+
+    headline = {
+        "output_dir": str(out), "reference_material": "dem", "reference": "FEM–DEM (150 spheres)",
+        "surrogate": "FEM–ML (nn tangent)", "validation_path": "path2", "training_path": "path1",
+        "elements": [1, 1, 2], "gauss_points": 16, "mesh_elements": [1, 1, 2], "symmetry": "none",
+        "modelled_fraction": 1.0, "uniform_field": False, "gauss_points_modelled": 16,
+        "material_points_evaluated": 16, "surrogate_points_evaluated": 16, "n_spheres": 150,
+        "machine": {"cores": 2, "cpu": "Test CPU 9000", "memory_gib": 24.0, "system": "Linux"},
+        "reference_wall_time_s": 563.2, "surrogate_wall_time_s": 0.247, "speedup": 2280.2, "surrogate_completed": True,
+        "surrogate_load_steps": 57, "reference_load_steps": 57, "top_force_max_rel_pct": 2.414,
+        "stress_mae_heldout_kpa": 1.951, "ablation": "FEM–ML, no history", "ablation_top_force_max_rel_pct": 5.02,
+        "ablation_stress_mae_heldout_kpa": 3.01, "surrogate_cost_s": 1000.0,
+        "surrogate_cost_items": [{"item": "RVE preparation (YADE packings)", "wall_time_s": 100.0},
+                                 {"item": "training NNσ (rule train_sigma)", "wall_time_s": 900.0}],
+        "break_even_runs": 2,
+        **changes,
+    }
+    headline["display"] = headline_display(headline)
+    (out / "tables").mkdir(parents=True, exist_ok=True)
+    (out / "tables" / "headline.json").write_text(json.dumps(headline))
+    return headline
+
+
+def front_page_through_the_api(tmp_path, reference="dem"):
+    """The report built with the Snakemake API (no '--report' on any command line)."""
+    out, report = tmp_path / "out", tmp_path / "report.html"
+    result = subprocess.run([sys.executable, "-c", API_REPORT, str(ROOT), str(out), str(report), reference],
+                            cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-4000:]
+    html = report.read_text()
+    text = json.loads(re.search(r"var workflow_desc = (\".*?\");\n", html).group(1))
+    return re.sub(r"\s+", " ", re.sub(r"<[^>]+>", "", text))
+
+
+def test_the_front_page_states_the_headline_when_the_api_builds_the_report(tmp_path):
+    """Pass criterion: tables/headline.json reaches the front page when the report is built
+    through the API (the old check looked for '--report' on the command line and missed it):
+    numbers as people read them, what ran, the cost of the surrogate and its break-even."""
+    headline_file(tmp_path / "out")
+    page = front_page_through_the_api(tmp_path)
+    assert "Measured on 2 cores of Test CPU 9000" in page
+    assert "Speedup 2,280× for one answer: FEM–ML (nn tangent) took 0.247 s, FEM–DEM (150 spheres) 563 s (9.4 min)" in page
+    assert "the full specimen, 16 Gauss points (no symmetry reduction)" in page
+    assert "the reference evaluated 16 RVEs, one per Gauss point" in page
+    assert ("Making the surrogate took 1,000 s (17 min): RVE preparation (YADE packings) 100 s; "
+            "training NNσ (rule train_sigma) 900 s (15 min).") in page
+    assert "It pays back from 2 FEM–ML runs of path2 on" in page
+    assert "Top-force error 2.41 % of the peak" in page and "Held-out stress MAE 1.95 kPa" in page
+    assert "top-force error 5.02 %, held-out stress MAE 3.01 kPa" in page
+    assert "e+0" not in page  # no exponent notation anywhere
+
+
+def test_the_front_page_states_the_reductions_and_a_surrogate_that_never_pays_back(tmp_path):
+    """Quarter symmetry with a uniform field on the elastoplastic reference: 16 of the 64 Gauss
+    points modelled, one material point evaluated; FEM–ML slower than the analytic model."""
+    headline_file(tmp_path / "out", reference_material="elastoplastic", reference="FEM, elastoplastic model (reference)",
+                  elements=[2, 2, 2], gauss_points=64, symmetry="quarter", modelled_fraction=0.25, uniform_field=True,
+                  material_points_evaluated=1, reference_wall_time_s=0.31, surrogate_wall_time_s=1.2, speedup=0.2583,
+                  break_even_runs=None, surrogate_cost_items=[{"item": "dataset", "wall_time_s": 3.0}],
+                  surrogate_cost_s=3.0)
+    page = front_page_through_the_api(tmp_path, reference="elastoplastic")
+    assert "quarter symmetry (specimen.symmetry: quarter), a mesh of 1 × 1 × 2 elements with 16 of the specimen's 64 Gauss points" in page
+    assert "uniform field (specimen.uniform_field: true): one material point stands for all 16 Gauss points" in page
+    assert "the reference evaluated 1 material point;" in page
+    assert "Speedup 0.258× for one answer" in page
+    assert "It never pays back here: FEM–ML (nn tangent) is not faster than FEM, elastoplastic model (reference)." in page
+    assert "The reference is the analytic model, not FEM–DEM" in page
+
+
+def test_jobs_validate_a_config_that_carries_the_headline():
+    """The workflow puts the headline under config["headline"] for the front page; a rule script
+    that validates its config (every FEM rule does) must neither fail on it nor keep it."""
+    from granular_multiscale.config import validate_config
+
+    config = validate_config({"output_dir": "results/x", "headline": {"speedup": 2660.3}})
+    assert "headline" not in config and config["output_dir"] == "results/x"

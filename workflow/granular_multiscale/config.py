@@ -71,10 +71,16 @@ def load_schema() -> dict:
         return yaml.safe_load(f)
 
 
+#: keys the workflow itself puts into Snakemake's config for the report (never a setting):
+#: workflow/rules/analysis.smk puts tables/headline.json under "headline" for the front page
+REPORT_ONLY_KEYS = ("headline",)
+
+
 def validate_config(config: dict, schema: dict | None = None) -> dict:
-    """Fill defaults and validate; returns the completed config (a copy)."""
+    """Fill defaults and validate; returns the completed config (a copy, without the
+    :data:`REPORT_ONLY_KEYS`)."""
     schema = schema or load_schema()
-    config = copy.deepcopy(dict(config))
+    config = {k: copy.deepcopy(v) for k, v in dict(config).items() if k not in REPORT_ONLY_KEYS}
     _fill_defaults(config, schema)
     validator = jsonschema.Draft7Validator(schema)
     errors = sorted(validator.iter_errors(config), key=lambda e: list(e.absolute_path))
