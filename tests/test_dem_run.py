@@ -182,3 +182,36 @@ def test_dask_local_cluster_equals_local_pool(tmp_path_factory, tmp_path):
     assert distributed.attrs["dem_executor"] == "dask"
     assert distributed.sizes["step"] == 2 and distributed.trials.values[1] >= 1
     _same_results(local, distributed)
+
+
+def test_snakemake_killed_hard_resumes_after_unlock(tmp_path):
+    """The README's recipe after `kill -9` of the whole Snakemake run: the same command is refused
+    (Snakemake's lock stays), `--unlock` with the same options frees it, and the same command
+    then resumes the FEM–DEM run from its checkpoint."""
+    out = tmp_path / "out"
+    config = tiny_config(out, {"path1": [[8, 0.008]]}, snapshot_interval=2)
+    config_file = tmp_path / "config.yaml"
+    config_file.write_text(yaml.safe_dump(config))
+    # a working directory of its own: --unlock removes every lock of the directory it runs in
+    workdir = tmp_path / "wd"
+    workdir.mkdir()
+    snakemake = [str(Path(sys.executable).with_name("snakemake")), "--snakefile", str(ROOT / "Snakefile"),
+                 "--configfile", str(config_file)]
+    target = f"{out}/fem_dem/path1.h5"
+    checkpoint = out / "checkpoints" / "fem_dem" / "path1.ckpt"
+    proc = subprocess.Popen([*snakemake, "-j2", "--", target], cwd=workdir, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    step = _kill_after_step(proc, checkpoint, 3, timeout=600)
+    assert 3 <= step < 8 and proc.returncode == -signal.SIGKILL and not Path(target).exists()
+
+    def run(*args):
+        return subprocess.run([*snakemake, *args], cwd=workdir, capture_output=True, text=True, timeout=900)
+
+    refused = run("-j2", "--", target)
+    assert refused.returncode != 0 and "--unlock" in refused.stdout + refused.stderr
+    assert run("--unlock").returncode == 0
+    resumed = run("-j2", "--", target)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    log = (out / "logs" / "fem_dem" / "path1.log").read_text()
+    assert f"resuming from checkpoint {checkpoint} after step {step}" in log
+    assert read_run(target).sizes["step"] == 9

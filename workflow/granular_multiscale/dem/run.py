@@ -20,7 +20,8 @@ import numpy as np
 from ..atomic import atomic_path
 from .rve import RVESpec, prepare_packing
 
-NEWTON_OVERRIDES = ("tolerance", "max_iterations", "max_cutbacks", "line_search", "tangent_repair")
+NEWTON_OVERRIDES = ("tolerance", "max_iterations", "max_cutbacks", "line_search", "tangent_repair", "acceleration",
+                    "anderson_depth", "predictor")
 
 
 def dem_newton_config(config: dict) -> dict:
