@@ -37,8 +37,11 @@ def _same_results(a, b, steps=None):
 def test_newton_overrides():
     config = tiny_config(Path("/tmp/unused"), {"p": [[1, 0.001]]})
     cfg = dem_newton_config(config)
-    assert cfg["newton"]["tolerance"] == config["dem"]["newton"]["tolerance"] == 2e-2
-    assert cfg["newton"]["max_iterations"] == 8
+    assert cfg["newton"]["tolerance"] == config["dem"]["newton"]["tolerance"] == 2e-3
+    assert cfg["newton"]["max_iterations"] == 30
+    # the tolerance study's choice for FEM–DEM, not the analytic materials' defaults
+    assert (cfg["newton"]["predictor"], cfg["newton"]["acceleration"]) == ("extrapolate", "anderson")
+    assert (config["newton"]["predictor"], config["newton"]["acceleration"]) == ("tangent", "none")
     assert cfg["newton"]["max_cutbacks"] == config["newton"]["max_cutbacks"]  # not overridden
     config["dem"]["newton"]["max_cutbacks"] = 1
     assert dem_newton_config(config)["newton"]["max_cutbacks"] == 1

@@ -93,6 +93,8 @@ def validate_config(config: dict, schema: dict | None = None) -> dict:
             else:
                 lines.append(f"config key '{key}': {e.message}")
         raise ConfigError("invalid configuration:\n  " + "\n  ".join(lines))
+    if not config["tolerance_study"]["path"]:
+        config["tolerance_study"]["path"] = config["validation_path"]
     _check_consistency(config)
     return config
 
@@ -106,6 +108,14 @@ def _check_consistency(config: dict) -> None:
             raise ConfigError(
                 f"config key '{key}': unknown path {config[key]!r}; defined paths: {sorted(paths)}"
             )
+    study = config["tolerance_study"]
+    if study["path"] not in paths:
+        raise ConfigError(f"config key 'tolerance_study.path': unknown path {study['path']!r}; defined paths: "
+                          f"{sorted(paths)}")
+    for key in ("converged", "baseline"):
+        if study[key] not in study["variants"]:
+            raise ConfigError(f"config key 'tolerance_study.{key}': {study[key]!r} is not one of the variants "
+                              f"{sorted(study['variants'])}")
 
 
 def load_config(path: str | Path | None = None, overrides: dict | None = None) -> dict:

@@ -1,0 +1,152 @@
+"""What each reduction of the scene costs in accuracy with DEM RVEs, measured side by side on the
+validation path with the same packing and the configured FEM–DEM settings:
+
+* quarter symmetry (``specimen.symmetry: quarter``, rough platens) against the full specimen;
+* one RVE for a homogeneous field (``specimen.uniform_field: true``) against the full specimen
+  with smooth platens (the only scene where a uniform field is valid).
+
+    .venv/bin/python bench/bench_reductions.py                        # tiny scale (~2 min)
+    .venv/bin/python bench/bench_reductions.py --scale default \\
+        --full results/fem_dem/path2.h5                               # reuse the pipeline's full run
+
+A DEM packing is not mirror-symmetric, so a quarter model imposes a symmetry the full specimen
+does not have; one packing at every Gauss point makes every RVE answer the same strain the
+same way, so the question is how far the full specimen's field strays from that symmetry.
+Printed per reduction: top force (largest difference in % of the full run's peak), volumetric
+strain (in % of its peak magnitude), Gauss-point stress (MAE over steps, points and components,
+and in % of the mean stress magnitude) at the same positions, and the DEM particle-steps of each.
+For the full run it also prints its own asymmetry: the stress difference between each Gauss point
+of the quarter region and its three mirror images.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import logging
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from granular_multiscale.config import CONFIG_DIR, load_config
+from granular_multiscale.data import read_run
+from granular_multiscale.dem.run import run_fem_dem
+
+ROOT = Path(__file__).resolve().parents[1]
+SCALES = {"tiny": "tiny.yaml", "default": "config.yaml"}
+SCENES = {
+    "full_rough": {"platen": "rough", "symmetry": "none", "uniform_field": False},
+    "quarter_rough": {"platen": "rough", "symmetry": "quarter", "uniform_field": False},
+    "full_smooth": {"platen": "smooth", "symmetry": "none", "uniform_field": False},
+    "uniform_smooth": {"platen": "smooth", "symmetry": "none", "uniform_field": True},
+}
+
+
+def match_points(positions: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """Index into `positions` of each target position (they must coincide to round-off)."""
+    d = np.linalg.norm(positions[None, :, :] - targets[:, None, :], axis=2)
+    index = d.argmin(axis=1)
+    if d[np.arange(len(targets)), index].max() > 1e-9:
+        raise ValueError("Gauss-point positions of the two runs do not coincide")
+    return index
+
+
+def stress_difference(a: np.ndarray, b: np.ndarray) -> dict:
+    """MAE (kPa) and MAE in % of the mean stress magnitude, over load steps 1..n."""
+    err = np.abs(a[1:] - b[1:])
+    scale = np.abs(b[1:, :, :3]).mean()
+    return {"stress_mae_kpa": 1e-3 * err.mean(), "stress_mae_pct": 100 * err.mean() / scale}
+
+
+def curves(run, reference) -> dict:
+    force, volume = reference.top_force.values, reference.volumetric_strain.values
+    return {
+        "top_force_max_pct": 100 * np.abs(run.top_force.values - force).max() / np.abs(force).max(),
+        "volumetric_strain_max_pct": 100 * np.abs(run.volumetric_strain.values - volume).max() / np.abs(volume).max(),
+    }
+
+
+def mirror_asymmetry(full, size) -> dict:
+    """Stress difference between the full run's quarter-region points and their mirror images."""
+    x = full.gp_position.values
+    quarter = np.flatnonzero((x[:, 0] > size[0] / 2) & (x[:, 1] > size[1] / 2))
+    stress = full.stress.values
+    diffs = []
+    for flip in ((True, False), (False, True), (True, True)):
+        mirrored = x[quarter].copy()
+        if flip[0]:
+            mirrored[:, 0] = size[0] - mirrored[:, 0]
+        if flip[1]:
+            mirrored[:, 1] = size[1] - mirrored[:, 1]
+        partner = match_points(x, mirrored)
+        # the normal components and ε23... change sign with the shear under a mirror: compare the
+        # normal stresses, which a mirror leaves unchanged
+        diffs.append(np.abs(stress[1:, quarter, :3] - stress[1:, partner, :3]))
+    err = np.concatenate(diffs, axis=1)
+    return {"stress_mae_kpa": 1e-3 * err.mean(), "stress_mae_pct": 100 * err.mean() / np.abs(stress[1:, :, :3]).mean()}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scale", choices=sorted(SCALES), default="tiny")
+    parser.add_argument("--packing", help="consolidated packing (default: <output_dir>/rve/packing_0.yade.gz)")
+    parser.add_argument("--full", help="an existing full, rough-platen FEM–DEM run of the validation path to reuse")
+    parser.add_argument("--out", help="folder of the runs (default: results/bench/reductions_<scale>)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--verbose", action="store_true")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(asctime)s %(message)s")
+    logger = logging.getLogger("bench")
+
+    config = load_config(CONFIG_DIR / SCALES[args.scale])
+    path = config["validation_path"]
+    packing = Path(args.packing) if args.packing else ROOT / config["output_dir"] / "rve" / "packing_0.yade.gz"
+    if not packing.exists():
+        raise SystemExit(f"packing {packing} not found: run `snakemake -j2 {config['output_dir']}/rve/summary.json` "
+                         "with the same config first, or pass --packing")
+    out = Path(args.out) if args.out else ROOT / "results" / "bench" / f"reductions_{args.scale}"
+    runs, cost = {}, {}
+    for name, scene in SCENES.items():
+        target = out / name / f"{path}.h5"
+        if name == "full_rough" and args.full:
+            target = Path(args.full)
+        if not target.exists():
+            cfg = copy.deepcopy(config)
+            cfg["specimen"].update(scene)
+            print(f"running {name} ...", flush=True)
+            run_fem_dem(cfg, path, [str(packing)], str(target), None, args.workers, logger=logger)
+        runs[name] = read_run(target)
+        ds = runs[name]
+        if ds.attrs["newton_tolerance"] != runs["full_rough"].attrs["newton_tolerance"]:
+            raise SystemExit(f"{target}: Newton tolerance {ds.attrs['newton_tolerance']} differs from the full run's")
+        cost[name] = float(ds.attrs["dem_particle_steps"])
+
+    size = config["specimen"]["size"]
+    full, quarter = runs["full_rough"], runs["quarter_rough"]
+    at = match_points(full.gp_position.values, quarter.gp_position.values)
+    smooth, uniform = runs["full_smooth"], runs["uniform_smooth"]
+    rows = [
+        {"reduction": "quarter symmetry (rough platens)", "against": "full specimen, rough",
+         **curves(quarter, full), **stress_difference(quarter.stress.values, full.stress.values[:, at]),
+         "rves": quarter.attrs.get("material_points", quarter.sizes["gp"]),
+         "particle_steps_ratio": cost["quarter_rough"] / cost["full_rough"]},
+        {"reduction": "uniform field, one RVE (smooth platens)", "against": "full specimen, smooth",
+         **curves(uniform, smooth), **stress_difference(uniform.stress.values, smooth.stress.values),
+         "rves": 1, "particle_steps_ratio": cost["uniform_smooth"] / cost["full_smooth"]},
+        {"reduction": "(full, rough: its own mirror asymmetry)", "against": "its mirror images",
+         "top_force_max_pct": np.nan, "volumetric_strain_max_pct": np.nan, **mirror_asymmetry(full, size),
+         "rves": full.sizes["gp"], "particle_steps_ratio": 1.0},
+    ]
+    table = pd.DataFrame(rows)
+    pd.set_option("display.width", 200)
+    print(f"\n{args.scale} scale, {path}, {config['dem']['n_spheres']} spheres per RVE, packing {packing}, "
+          f"Newton tolerance {full.attrs['newton_tolerance']:g}")
+    print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    out.mkdir(parents=True, exist_ok=True)
+    table.to_csv(out / "reductions.csv", index=False)
+    print(f"\nwritten {out / 'reductions.csv'}")
+
+
+if __name__ == "__main__":
+    main()
