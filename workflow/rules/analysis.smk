@@ -7,6 +7,8 @@
 # All products compare runs of the validation path (Path2): the reference (FEM–DEM, or the
 # elastoplastic model with reference_material: elastoplastic), FEM–ML and the no-history
 # ablation; the speed figure and tables add FEM–DEM at other sphere counts when configured.
+# The surrogate cost table adds what making the surrogate cost (RVE packings, the training
+# path's reference run, dataset, NNσ and ND training) and the break-even number of FEM–ML runs.
 ANALYSIS = config["analysis"]
 VALIDATION = config["validation_path"]
 TANGENT = config["surrogate"]["tangent"]
@@ -345,7 +347,13 @@ HEADLINE_FILE = f"{OUT}/tables/headline.json"
 def show_headline():
     from granular_multiscale.analysis.products import read_headline
 
-    headline = read_headline(HEADLINE_FILE)
+    try:
+        headline = read_headline(HEADLINE_FILE)
+    except ValueError as error:  # a damaged file must not stop the workflow that rebuilds it
+        from snakemake.logging import logger
+
+        logger.warning(f"{error}: the report's front page will lack the headline numbers")
+        headline = None
     if headline is None:
         config.pop("headline", None)
     else:
