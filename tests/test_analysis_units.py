@@ -321,6 +321,7 @@ def test_surrogate_cost_table_and_break_even(tmp_path):
     assert table["wall_time_h"].iloc[5] == pytest.approx(1000.0 / 3600)
     page = (tmp_path / "cost.html").read_text()
     assert "from 3 FEM–ML runs on" in page and "1,000 s (17 min)" in page
+    assert "<td>train_sigma.tsv</td>" in page and str(tmp_path) not in page  # files below their folder
 
     headline = products.make_headline(tmp_path / "speedup.csv", write_accuracy(tmp_path), tmp_path / "headline.json",
                                       config=CONFIG, reference_label="FEM–DEM (150 spheres)",

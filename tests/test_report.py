@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pandas as pd
 import pytest
 import yaml
 
@@ -30,7 +31,7 @@ FIGURES = [
     "training_curves.png",
     "speed_vs_error.png",
 ]
-TABLES = ["speedup.csv", "speedup.html", "accuracy.csv", "accuracy.html"]
+TABLES = ["speedup.csv", "speedup.html", "accuracy.csv", "accuracy.html", "surrogate_cost.csv", "surrogate_cost.html"]
 
 
 def snakemake(*args, cwd=ROOT):
@@ -39,9 +40,20 @@ def snakemake(*args, cwd=ROOT):
     return result
 
 
+def plain(html_text):
+    """The text of an HTML fragment, whitespace collapsed."""
+    return re.sub(r"\s+", " ", re.sub(r"<[^>]+>", "", html_text))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("reference", ["elastoplastic", "dem"])
 def test_tiny_pipeline_builds_the_report(tmp_path, reference):
+    """The elastoplastic chain builds its report in the same call (--report-after-run: the front
+    page must state the numbers this run has just written), the DEM chain with a second call
+    (--report). Either way a dry run afterwards has nothing to do: the headline in the config
+    makes no rule rerun."""
+    from granular_multiscale.analysis import tables
+
     out = tmp_path / "tiny"
     override = tmp_path / "override.yaml"
     override.write_text(yaml.safe_dump({
@@ -53,19 +65,32 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     # surrogate stage's own metric tables, which its tests cover)
     targets = [f"{out}/figures/{name}" for name in FIGURES] + [f"{out}/tables/{name}" for name in TABLES]
     targets += [f"{out}/tables/headline.json", f"{out}/vtk/reference/path2", f"{out}/vtk/fem_ml/path2"]
-    snakemake("-j2", *config_args, "--", *targets)
+    report = out / "report.html"
+    if reference == "elastoplastic":
+        snakemake("-j2", *config_args, "--report", str(report), "--report-after-run", "--", *targets)
+    else:
+        snakemake("-j2", *config_args, "--", *targets)
+        snakemake("--report", str(report), *config_args)
+    again = snakemake("-n", "-j2", *config_args, "--", *targets)
+    assert "Nothing to be done" in again.stdout + again.stderr, (again.stdout + again.stderr)[-3000:]
     for name in FIGURES:
         assert (out / "figures" / name).stat().st_size > 10_000, name
     for name in TABLES:
         assert (out / "tables" / name).is_file(), name
-    fem_ml = read_run(out / "fem_ml" / "path2.h5")
-    vtk = out / "vtk" / "fem_ml" / "path2"
-    assert (vtk / "path2.pvd").is_file() and len(list(vtk.glob("path2_*.vtu"))) == fem_ml.sizes["step"]
-    if fem_ml.attrs["completed"]:
-        assert fem_ml.sizes["step"] == 58
 
-    report = out / "report.html"
-    snakemake("--report", str(report), *config_args)
+    reference_dir = "fem_dem" if reference == "dem" else "fem_elastoplastic"
+    reference_run = read_run(out / reference_dir / "path2.h5")
+    fem_ml = read_run(out / "fem_ml" / "path2.h5")
+    n_ref, n_ml = reference_run.sizes["step"], fem_ml.sizes["step"]
+    completed = bool(fem_ml.attrs["completed"])
+    assert n_ref == 58  # step 0 and the 57 load steps of path2
+    if completed:
+        assert n_ml == n_ref and "stopped_at_step" not in fem_ml.attrs
+    else:  # kept the converged steps 0..k-1 of a run that stopped at step k
+        assert fem_ml.attrs["stopped_at_step"] == n_ml and 1 < n_ml < n_ref
+    vtk = out / "vtk" / "fem_ml" / "path2"
+    assert (vtk / "path2.pvd").is_file() and len(list(vtk.glob("path2_*.vtu"))) == n_ml
+
     html = report.read_text()
     assert report.stat().st_size > 500_000  # the PNGs are embedded, not linked
     for name in FIGURES + TABLES:
@@ -79,20 +104,63 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
         assert category in html
     # the front page states scale, reference material, machine and the headline numbers
     headline = json.loads((out / "tables" / "headline.json").read_text())
-    description = re.search(r"var workflow_desc = (\".*?\");\n", html).group(1)
-    description = json.loads(description)
+    display = headline["display"]
+    raw = json.loads(re.search(r"var workflow_desc = (\".*?\");\n", html).group(1))
+    assert "System Message" not in raw  # reStructuredText rendered without errors
+    description = plain(raw)
     if reference == "elastoplastic":
         assert "Analytic elastoplastic model" in description and "not FEM–DEM" in description
     else:
         assert "YADE RVEs of 150 spheres" in description and "Analytic" not in description
         assert (out / "fem_dem" / "path1.h5").is_file() and (out / "rve" / "summary.json").is_file()
-    if not fem_ml.attrs["completed"]:
-        assert f"stopped after load step {fem_ml.sizes['step'] - 1} of" in description
-    assert "16 Gauss points" in description
+    assert headline["surrogate_completed"] is completed
+    assert headline["surrogate_load_steps"] == n_ml - 1 and headline["reference_load_steps"] == n_ref - 1
+    stop = f"stopped after load step {n_ml - 1} of {n_ref - 1}"
+    assert (stop in description) is not completed
+
+    # what ran: the full 1×1×2 mesh, one material point per Gauss point
+    speed = pd.read_csv(out / "tables" / "speedup.csv")
+    this = speed[speed["source"] == "this run"].set_index("method")
+    assert (this["rves"] == 16).all()
+    assert headline["gauss_points"] == headline["gauss_points_modelled"] == headline["material_points_evaluated"] == 16
+    assert headline["symmetry"] == "none" and headline["uniform_field"] is False
+    assert "the full specimen, 16 Gauss points (no symmetry reduction)" in description
+    points = "RVEs" if reference == "dem" else "material points"
+    assert f"the reference evaluated 16 {points}, one per Gauss point" in description
     assert f"Measured on {headline['machine']['cores']} cores" in description
-    assert f"Speedup {headline['speedup']:.3g}×" in description
-    assert f"Held-out stress MAE {headline['stress_mae_heldout_kpa']:.3g} kPa" in description
-    assert "System Message" not in description  # reStructuredText rendered without errors
+    assert (f"Speedup {display['speedup']} for one answer: {headline['surrogate']} took {display['surrogate_wall_time']}, "
+            f"{headline['reference']} {display['reference_wall_time']}") in description
+    assert f"Held-out stress MAE {display['stress_mae_heldout_kpa']}" in description
+    assert "e+0" not in description and "e-0" not in description  # no exponent notation
+
+    # the full cost of an answer: every item as its file says, their total, the break-even
+    cost = pd.read_csv(out / "tables" / "surrogate_cost.csv")
+    items = cost[cost["kind"] == "surrogate cost"].set_index("item")["wall_time_s"]
+    training_run = read_run(out / reference_dir / "path1.h5")
+    expected = {"reference run of Path1": tables.run_wall_time(training_run)}
+    if reference == "dem":
+        expected["RVE preparation"] = tables.rve_preparation_seconds(out / "rve" / "summary.json")
+    for network in ("dataset", "train_sigma", "train_tangent"):
+        expected[network] = tables.benchmark_seconds(out / "benchmarks" / "surrogate" / f"{network}.tsv")
+    assert len(items) == len(expected) == (5 if reference == "dem" else 4)
+    for key, seconds in expected.items():
+        matching = [label for label in items.index if label.startswith(key) or f"rule {key})" in label]
+        assert len(matching) == 1, (key, list(items.index))
+        assert items[matching[0]] == pytest.approx(seconds, rel=1e-6) and seconds > 0, key
+    total = float(cost[cost["kind"] == "surrogate cost total"]["wall_time_s"].iloc[0])
+    assert total == pytest.approx(sum(expected.values()))
+    assert headline["surrogate_cost_s"] == pytest.approx(total)
+    t_ref, t_ml = cost[cost["kind"] == "one answer"]["wall_time_s"].tolist()
+    assert t_ref == pytest.approx(headline["reference_wall_time_s"])
+    assert t_ml == pytest.approx(headline["surrogate_wall_time_s"] / (n_ml - 1) * (n_ref - 1))
+    assert headline["break_even_runs"] == tables.break_even_runs(total, t_ref, t_ml)
+    assert f"Making the surrogate took {display['surrogate_cost']}" in description
+    if headline["break_even_runs"] is None:
+        assert "It never pays back here" in description
+    else:
+        n = headline["break_even_runs"]
+        assert f"It pays back from {display['break_even_runs']} FEM–ML run{'' if n == 1 else 's'} of path2 on" in description
+        assert n * t_ml + total <= n * t_ref and (n == 1 or (n - 1) * t_ml + total > (n - 1) * t_ref)
 
 
 # -- the front page, whatever builds the report (fast: no job runs) ---------------------

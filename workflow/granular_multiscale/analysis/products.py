@@ -382,8 +382,14 @@ def make_surrogate_cost(items: Sequence[tuple[str, str, str]], speedup_csv, out_
     table, numbers = tables.surrogate_cost_table(costs, reference=(reference_label, t_ref),
                                                  surrogate=(surrogate_label, t_ml), path=path_label)
     tables.write_csv(table, out_csv)
-    shown = table.copy()
+    shown = table.drop(columns=["wall_time_h"])
     shown.insert(2, "wall_time", [readable_duration(t) for t in table["wall_time_s"]])
+    files = [str(path) for _, _, path in items]
+    if len(files) > 1:  # the HTML names the files below their common folder (the output_dir)
+        import os
+
+        top = os.path.commonpath(files)
+        shown["source"] = [os.path.relpath(f, top) if f in files else f for f in shown["source"]]
     n = numbers["break_even_runs"]
     verdict = (f"Break-even: from {n} FEM–ML runs on, making the surrogate once and running it N times costs no "
                f"more than N runs of {reference_label}: the smallest N with N·t_ML + cost ≤ N·t_ref, "
