@@ -56,10 +56,11 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
 
     out = tmp_path / "tiny"
     override = tmp_path / "override.yaml"
-    override.write_text(yaml.safe_dump({
-        "output_dir": str(out),
-        "reference_material": reference,
-    }))  # training epochs as config/tiny.yaml sets them
+    settings = {"output_dir": str(out), "reference_material": reference}  # training epochs as config/tiny.yaml sets them
+    if reference == "dem":  # the reference's own error on the front page: a two-variant tolerance study
+        settings["tolerance_study"] = {"converged": "tight", "baseline": "default", "variants": {
+            "default": {"tolerance": 2.0e-3, "max_iterations": 30}, "tight": {"tolerance": 5.0e-4}}}
+    override.write_text(yaml.safe_dump(settings))
     config_args = ["--configfile", "config/tiny.yaml", str(override)]
     # what the report needs (rule all adds the FEM–ML runs of the training path and the
     # surrogate stage's own metric tables, which its tests cover)
@@ -69,8 +70,8 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     if reference == "elastoplastic":
         snakemake("-j2", *config_args, "--report", str(report), "--report-after-run", "--", *targets)
     else:
-        snakemake("-j2", *config_args, "--", *targets)
-        snakemake("--report", str(report), *config_args)
+        snakemake("-j2", *config_args, "--", *targets, "tolerance_study")
+        snakemake("--report", str(report), *config_args, "--", "all", "tolerance_study")
     again = snakemake("-n", "-j2", *config_args, "--", *targets)
     assert "Nothing to be done" in again.stdout + again.stderr, (again.stdout + again.stderr)[-3000:]
     for name in FIGURES:
@@ -132,6 +133,21 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
             f"{headline['reference']} {display['reference_wall_time']}") in description
     assert f"Held-out stress MAE {display['stress_mae_heldout_kpa']}" in description
     assert "e+0" not in description and "e-0" not in description  # no exponent notation
+
+    # the reference's tolerance, the residual it reached and (DEM: from the study) its own error
+    newton = headline["reference_newton"]
+    assert newton["tolerance"] == reference_run.attrs["newton_tolerance"]
+    assert newton["residual_relative_max"] == pytest.approx(reference_run.residual_relative.values.max())
+    assert f"The reference was solved to a relative residual of {display['reference_tolerance']} " in description
+    assert display["reference_tolerance"] == ("0.002" if reference == "dem" else "0.00000001")
+    if reference == "dem":
+        assert (newton["tolerance"], newton["predictor"], newton["acceleration"]) == (2e-3, "extrapolate", "anderson")
+        study = pd.read_csv(out / "tables" / "tolerance_study.csv").set_index("variant")
+        assert f"top force within {study.loc['default', 'top_force_max_pct']:.2f} % of the peak" in description
+        assert "variant default against a run to 0.0005" in description
+        assert "tolerance_study.png" in html and "5 Reference" in html
+    else:
+        assert "Its own error is not measured for this configuration" in description
 
     # the full cost of an answer: every item as its file says, their total, the break-even
     cost = pd.read_csv(out / "tables" / "surrogate_cost.csv")

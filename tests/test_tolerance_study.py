@@ -112,3 +112,24 @@ def test_config_errors_name_the_key():
                                                             "bad": {"tolerance": 1e-3, "predictor": "linear"}},
                                "tolerance_study.converged": "a", "tolerance_study.baseline": "a"})
     assert load_config()["tolerance_study"]["path"] == "path2"  # the validation path by default
+
+
+def test_self_consistency_finds_the_reference_settings_in_the_study(tmp_path):
+    from granular_multiscale.analysis.convergence import newton_settings_of, self_consistency
+
+    runs = {"a": _run(1e-2), "b": _run(1e-3), "c": _run(1e-6), "d": _run(1e-3, "tangent", "none")}
+    settings = {k: {"tolerance": float(r.attrs["newton_tolerance"]), "predictor": r.attrs["newton_predictor"],
+                    "acceleration": r.attrs["newton_acceleration"]} for k, r in runs.items()}
+    table = tolerance_table(runs, settings, converged="c", baseline="a")
+    table.to_csv(tmp_path / "study.csv", index=False)
+    newton = newton_settings_of(runs["b"])
+    assert newton == {"tolerance": 1e-3, "predictor": "extrapolate", "acceleration": "anderson",
+                      "residual_relative_max": pytest.approx(runs["b"].residual_relative.values.max())}
+    found = self_consistency(tmp_path / "study.csv", newton)
+    row = table.set_index("variant").loc["b"]
+    assert found["variant"] == "b" and found["converged_tolerance"] == 1e-6
+    assert found["top_force_max_pct"] == pytest.approx(row.top_force_max_pct) and row.top_force_max_pct > 0
+    # the same tolerance with another solver is another row; an unstudied setting has none
+    assert self_consistency(tmp_path / "study.csv", newton_settings_of(runs["d"]))["variant"] == "d"
+    assert self_consistency(tmp_path / "study.csv", dict(newton, tolerance=5e-3)) is None
+    assert self_consistency(tmp_path / "missing.csv", newton) is None

@@ -357,6 +357,14 @@ def show_headline():
     if headline is None:
         config.pop("headline", None)
     else:
+        if headline.get("reference_newton"):  # the reference's own error, if the tolerance study ran
+            from granular_multiscale.analysis.convergence import self_consistency
+
+            from granular_multiscale.analysis.products import headline_display
+
+            headline["reference_convergence"] = self_consistency(f"{OUT}/tables/tolerance_study.csv",
+                                                                 headline["reference_newton"])
+            headline["display"] = headline_display(headline)
         config["headline"] = headline
 
 

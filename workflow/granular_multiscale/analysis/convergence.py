@@ -108,6 +108,44 @@ def tolerance_table(runs: Mapping[str, xr.Dataset], settings: Mapping[str, Mappi
     return table[list(COLUMNS)].reset_index(drop=True)
 
 
+def newton_settings_of(run: xr.Dataset) -> dict | None:
+    """The Newton settings a run was solved with and the largest relative residual it accepted
+    (None for a file that does not record its tolerance)."""
+    if "newton_tolerance" not in run.attrs:
+        return None
+    return {
+        "tolerance": float(run.attrs["newton_tolerance"]),
+        "predictor": str(run.attrs.get("newton_predictor", "tangent")),
+        "acceleration": str(run.attrs.get("newton_acceleration", "none")),
+        "residual_relative_max": cost_per_step(run)["residual_relative_max"],
+    }
+
+
+def self_consistency(study_csv: str | Path, newton: Mapping) -> dict | None:
+    """The tolerance-study row solved with the same Newton settings as ``newton`` (a run's, see
+    :func:`newton_settings_of`): its differences from the converged variant. None when there is
+    no study table or no such row."""
+    path = Path(study_csv)
+    if not path.is_file():
+        return None
+    table = pd.read_csv(path)
+    same = table[np.isclose(table["tolerance"], newton["tolerance"], rtol=1e-9)
+                 & (table["predictor"] == newton["predictor"]) & (table["acceleration"] == newton["acceleration"])]
+    if same.empty:
+        return None
+    row = same.iloc[0]
+    converged = table.loc[table["top_force_max_pct"].eq(0) & table["stress_mae_kpa"].eq(0)]
+    return {
+        "variant": str(row["variant"]),
+        "converged_tolerance": float(converged["tolerance"].min()) if not converged.empty else None,
+        "top_force_max_pct": float(row["top_force_max_pct"]),
+        "volumetric_strain_max_pct": float(row["volumetric_strain_max_pct"]),
+        "stress_mae_kpa": float(row["stress_mae_kpa"]),
+        "evaluations_per_step": float(row["evaluations_per_step"]),
+        "file": str(path),
+    }
+
+
 def solver_label(predictor: str, acceleration: str) -> str:
     return f"{predictor} predictor" + (", Anderson" if acceleration != "none" else "")
 

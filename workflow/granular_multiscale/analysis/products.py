@@ -487,6 +487,10 @@ def make_headline(speedup_csv, accuracy_csv, out, *, config: Mapping, reference_
     }
     if cost_csv is not None:
         headline.update(_cost_numbers(cost_csv))
+    if reference_run is not None:
+        from .convergence import newton_settings_of
+
+        headline["reference_newton"] = newton_settings_of(data.read_run(reference_run))
     headline["display"] = headline_display(headline)
     write_json(headline, out)
     return headline
@@ -500,8 +504,17 @@ def headline_display(h: Mapping) -> dict:
     def kpa(v):
         return None if v is None else f"{readable_number(v)} kPa"
 
+    def small(v):  # a tolerance or a residual: two digits, no exponent, no trailing zeros
+        text = readable_number(v, 2)
+        return text.rstrip("0").rstrip(".") if "." in text else text
+
     n = h.get("break_even_runs")
+    newton = h.get("reference_newton") or {}
+    convergence = h.get("reference_convergence") or {}
     return {
+        "reference_tolerance": small(newton["tolerance"]) if newton else None,
+        "reference_residual_max": small(newton["residual_relative_max"]) if newton else None,
+        "converged_tolerance": small(convergence["converged_tolerance"]) if convergence else None,
         "speedup": readable_ratio(h["speedup"]),
         "reference_wall_time": readable_duration(h["reference_wall_time_s"]),
         "surrogate_wall_time": readable_duration(h["surrogate_wall_time_s"]),

@@ -481,6 +481,8 @@ class TriaxialProblem:
                 "newton_line_search": int(self.newton.line_search),
                 "newton_tangent_every": self.newton.tangent_every,
                 "newton_tangent_repair": self.newton.tangent_repair,
+                "newton_predictor": self.newton.predictor,
+                "newton_acceleration": self.newton.acceleration,
                 **tangent_attrs,
                 "gauss_points_per_element": POINTS_PER_ELEMENT,
             },
