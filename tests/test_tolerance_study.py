@@ -133,3 +133,21 @@ def test_self_consistency_finds_the_reference_settings_in_the_study(tmp_path):
     assert self_consistency(tmp_path / "study.csv", newton_settings_of(runs["d"]))["variant"] == "d"
     assert self_consistency(tmp_path / "study.csv", dict(newton, tolerance=5e-3)) is None
     assert self_consistency(tmp_path / "missing.csv", newton) is None
+
+
+def test_newton_settings_of_an_older_file_come_from_its_stored_config(tmp_path):
+    """Files written before the newton_predictor/newton_acceleration attributes: the config
+    stored with the run says it (a FEM–DEM run's dem.newton overriding newton)."""
+    from granular_multiscale.analysis.convergence import newton_settings_of
+    from granular_multiscale.config import load_config
+    from granular_multiscale.data import write_run
+
+    run = _run(2e-3)
+    del run.attrs["newton_predictor"], run.attrs["newton_acceleration"]
+    run.attrs["method"] = "dem"
+    write_run(run, tmp_path / "old.h5", load_config())
+    settings = newton_settings_of(read_run(tmp_path / "old.h5"))
+    assert (settings["predictor"], settings["acceleration"]) == ("extrapolate", "anderson")  # dem.newton's
+    run.attrs["method"] = "elastoplastic"
+    write_run(run, tmp_path / "other.h5", load_config())
+    assert newton_settings_of(read_run(tmp_path / "other.h5"))["predictor"] == "tangent"  # newton's

@@ -113,10 +113,21 @@ def newton_settings_of(run: xr.Dataset) -> dict | None:
     (None for a file that does not record its tolerance)."""
     if "newton_tolerance" not in run.attrs:
         return None
+    predictor, acceleration = run.attrs.get("newton_predictor"), run.attrs.get("newton_acceleration")
+    if predictor is None or acceleration is None:
+        # a file written before these attributes: the Newton section of the config stored with
+        # it (a FEM–DEM run's with the dem.newton overrides)
+        from ..data import run_config
+
+        config = run_config(run) or {}
+        newton = dict(config.get("newton", {}))
+        if run.attrs.get("method") == "dem":
+            newton.update(config.get("dem", {}).get("newton", {}))
+        predictor, acceleration = newton.get("predictor", "tangent"), newton.get("acceleration", "none")
     return {
         "tolerance": float(run.attrs["newton_tolerance"]),
-        "predictor": str(run.attrs.get("newton_predictor", "tangent")),
-        "acceleration": str(run.attrs.get("newton_acceleration", "none")),
+        "predictor": str(predictor),
+        "acceleration": str(acceleration),
         "residual_relative_max": cost_per_step(run)["residual_relative_max"],
     }
 
