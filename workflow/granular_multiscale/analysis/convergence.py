@@ -179,7 +179,7 @@ def tolerance_figure(table: pd.DataFrame, out: str | Path, converged: str, *, ti
             ax.plot(group["tolerance"], group[column], label=solver_label(predictor, acceleration), **st)
     limit = table[table["variant"] == converged].iloc[0]
     axes[2].plot([limit["tolerance"]], [limit["evaluations_per_step"]], "k*", markersize=10,
-                 label=f"converged limit ({solver_label(limit['predictor'], limit['acceleration'])})")
+                 label=f"converged run ({limit['variant']})")
     for ax, (column, label) in zip(axes, panels):
         ax.set_xscale("log")
         ax.invert_xaxis()  # tighter to the right
@@ -188,7 +188,11 @@ def tolerance_figure(table: pd.DataFrame, out: str | Path, converged: str, *, ti
         ax.grid(True, which="both", alpha=0.3)
     axes[0].set_yscale("log")
     axes[1].set_yscale("log")
-    axes[2].legend(fontsize=8, loc="upper left")
+    # upper right of the first panel is free: the differences fall to the right
+    handles = [h for ax in axes for h in ax.get_legend_handles_labels()[0]]
+    labels = [lab for ax in axes for lab in ax.get_legend_handles_labels()[1]]
+    unique = dict(zip(labels, handles))
+    axes[0].legend(unique.values(), unique.keys(), fontsize=8, loc="upper right")
     fig.suptitle(title, fontsize=10)
     fig.subplots_adjust(left=0.07, right=0.99, bottom=0.17, top=0.88, wspace=0.38)
     return save_figure(fig, out, dpi)
