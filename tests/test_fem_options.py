@@ -254,6 +254,7 @@ def test_uniform_field_one_point_gives_the_all_points_answer():
     np.testing.assert_allclose(ds.stress.values, every.stress.values, rtol=0, atol=1e-9 * P0)
     np.testing.assert_allclose(ds.tangent.values, every.tangent.values, rtol=1e-9, atol=1e-6)
     assert ds.attrs["uniform_field"] == 1
+    assert ds.attrs["material_points"] == 1 and every.attrs["material_points"] == 128  # what was evaluated
     assert ds.plastic_fraction.values.max() == 1.0  # the one point's step_info comes through
 
 

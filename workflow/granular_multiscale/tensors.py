@@ -97,11 +97,6 @@ def tangent_asymmetry(D: np.ndarray) -> float:
     return float(ratio.max())
 
 
-def tangent_is_symmetric(D: np.ndarray, rtol: float = SYMMETRY_RTOL) -> bool:
-    """True when every tangent [..., 6, 6] is symmetric to round-off (:data:`SYMMETRY_RTOL`)."""
-    return tangent_asymmetry(D) <= rtol
-
-
 def tangent_to_tensor4(D: np.ndarray) -> np.ndarray:
     """[..., 6, 6] Voigt stiffness -> [..., 3, 3, 3, 3] with σ_ij = C_ijkl ε_kl."""
     D = np.asarray(D)

@@ -449,8 +449,8 @@ def make_headline(speedup_csv, accuracy_csv, out, *, config: Mapping, reference_
     def acc(label, column):
         return float(accuracy.loc[label, column]) if label in accuracy.index else None
     elements = list(config["specimen"]["elements"])
-    reduction = (tables.model_reduction(data.read_run(reference_run)) if reference_run is not None
-                 else _reduction_from_config(config))
+    reference = data.read_run(reference_run) if reference_run is not None else None
+    reduction = tables.model_reduction(reference) if reference is not None else _reduction_from_config(config)
     headline = {
         "output_dir": config["output_dir"],
         "reference_material": config["reference_material"],
@@ -487,10 +487,10 @@ def make_headline(speedup_csv, accuracy_csv, out, *, config: Mapping, reference_
     }
     if cost_csv is not None:
         headline.update(_cost_numbers(cost_csv))
-    if reference_run is not None:
+    if reference is not None:
         from .convergence import newton_settings_of
 
-        headline["reference_newton"] = newton_settings_of(data.read_run(reference_run))
+        headline["reference_newton"] = newton_settings_of(reference)
     headline["display"] = headline_display(headline)
     write_json(headline, out)
     return headline

@@ -69,15 +69,15 @@ def first_step(phases: np.ndarray, label: str) -> int | None:
     return int(idx[0]) if idx.size else None
 
 
-# methods (run-file attr ``method``) whose driver builds a material set of one point per Gauss
-# point even under ``specimen.uniform_field`` (surrogate.fem_ml builds it with n_gauss_points);
-# the reference drivers (dem.run, scripts/run_fem_reference.py) build problem.n_material_points
+# files written before the attr ``material_points``: methods whose driver built a material set of
+# one point per Gauss point even under ``specimen.uniform_field`` (surrogate.fem_ml); the
+# reference drivers (dem.run, scripts/run_fem_reference.py) built problem.n_material_points
 ALL_POINT_METHOD_PREFIXES = ("fem_ml",)
 
 
 def material_points_evaluated(ds: xr.Dataset) -> int:
     """Material points the run evaluated (RVEs that ran, for FEM–DEM): the run file's attr
-    ``material_points`` when it has one; else 1 for a ``uniform_field`` run of a reference driver
+    ``material_points`` (the solver records it); in an older file, 1 for a ``uniform_field`` run of a reference driver
     (one point stands for every Gauss point); else the Gauss points of the modelled mesh
     (``gp``, already reduced by ``symmetry: quarter``)."""
     if "material_points" in ds.attrs:

@@ -293,6 +293,7 @@ class TriaxialProblem:
         """Run the load path; returns the data-contract Dataset (write it with data.write_run)."""
         logger = logger or logging.getLogger("granular_multiscale.fem")
         method = method or getattr(material, "method", "material")
+        material_points = material.n_points  # before the uniform-field broadcast: what was evaluated
         material = self._wrap(material, logger)
         axial = load_path.axial_strain()
         phases = load_path.phase()
@@ -345,7 +346,7 @@ class TriaxialProblem:
                 result, stats = self._solve_step(material, step, a_from, axial[step], u, previous, timers)
             except ConvergenceError as error:
                 if records["axial_strain"]:
-                    error.partial = self._dataset(records, load_path, method)
+                    error.partial = self._dataset(records, load_path, method, material_points)
                     error.partial.attrs.update({"stopped_at_step": step, "stop_reason": str(error),
                                                 **_cost_split(timers, elapsed(), resume_time)})
                 logger.error("%s", error)
@@ -381,14 +382,14 @@ class TriaxialProblem:
                     step, load_path.n_steps, phases[step], 100 * axial[step], stats["iterations"],
                     result.residual_norms[-1] / result.reference, stats["cutbacks"], wall,
                 )
-        ds = self._dataset(records, load_path, method)
+        ds = self._dataset(records, load_path, method, material_points)
         ds.attrs.update(_cost_split(timers, elapsed(), resume_time))
         if checkpoint is not None:
             checkpoint.unlink(missing_ok=True)
         return ds
 
     # -- output -----------------------------------------------------------------------
-    def _dataset(self, rec: dict, load_path: LoadPath, method: str) -> xr.Dataset:
+    def _dataset(self, rec: dict, load_path: LoadPath, method: str, material_points: int) -> xr.Dataset:
         n_steps = len(rec["axial_strain"])
         strain = np.asarray(rec["strain"])
         longest = max(len(r) for r in rec["residual_norm"])
@@ -477,6 +478,7 @@ class TriaxialProblem:
                 "modelled_fraction": 1.0 / self.force_factor,
                 "mesh_elements": list(self.mesh_elements),
                 "uniform_field": int(self.uniform_field),
+                "material_points": int(material_points),
                 "newton_tolerance": self.newton.tolerance,
                 "newton_line_search": int(self.newton.line_search),
                 "newton_tangent_every": self.newton.tangent_every,
