@@ -347,8 +347,8 @@ HEADLINE_FILE = f"{OUT}/tables/headline.json"
 def show_headline():
     from granular_multiscale.analysis.products import read_headline
 
-    try:
-        headline = read_headline(HEADLINE_FILE)
+    try:  # with the reference's own error when the tolerance study has run
+        headline = read_headline(HEADLINE_FILE, tolerance_study=f"{OUT}/tables/tolerance_study.csv")
     except ValueError as error:  # a damaged file must not stop the workflow that rebuilds it
         from snakemake.logging import logger
 
@@ -357,14 +357,6 @@ def show_headline():
     if headline is None:
         config.pop("headline", None)
     else:
-        if headline.get("reference_newton"):  # the reference's own error, if the tolerance study ran
-            from granular_multiscale.analysis.convergence import self_consistency
-
-            from granular_multiscale.analysis.products import headline_display
-
-            headline["reference_convergence"] = self_consistency(f"{OUT}/tables/tolerance_study.csv",
-                                                                 headline["reference_newton"])
-            headline["display"] = headline_display(headline)
         config["headline"] = headline
 
 

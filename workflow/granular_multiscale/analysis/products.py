@@ -529,12 +529,21 @@ def headline_display(h: Mapping) -> dict:
     }
 
 
-def read_headline(path) -> dict | None:
-    """The headline JSON for the report's front page; None when the file does not exist yet."""
+def read_headline(path, tolerance_study=None) -> dict | None:
+    """The headline JSON for the report's front page; None when the file does not exist yet.
+
+    ``tolerance_study``: the study's CSV; when it exists and has a row solved like the reference,
+    the headline gains ``reference_convergence`` (the reference's own error) and its display."""
     path = Path(path)
     if not path.is_file():
         return None
     try:
-        return json.loads(path.read_text())
+        headline = json.loads(path.read_text())
     except ValueError as error:
         raise ValueError(f"headline file {path} is not valid JSON: {error}") from error
+    if tolerance_study is not None and headline.get("reference_newton"):
+        from .convergence import self_consistency
+
+        headline["reference_convergence"] = self_consistency(tolerance_study, headline["reference_newton"])
+        headline["display"] = headline_display(headline)
+    return headline
