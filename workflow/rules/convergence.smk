@@ -14,9 +14,7 @@ CAT_REFERENCE = "5 Reference"
 
 def study_dem(variant):
     """The dem section of a study run: dem.newton with the variant's settings."""
-    dem = {k: v for k, v in RUN_DEFINITION.items()}
-    dem["newton"] = {**config["dem"]["newton"], **STUDY["variants"][variant]}
-    return dem
+    return {**RUN_DEFINITION, "newton": {**config["dem"]["newton"], **STUDY["variants"][variant]}}
 
 
 use rule fem_dem as fem_dem_variant with:
