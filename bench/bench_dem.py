@@ -110,7 +110,8 @@ def per_size(config: dict, n_spheres: int, n_rves: int, trials: int, workdir: Pa
 
 def speedup(config: dict, steps: int, workdir: Path) -> dict:
     """The default-scale problem for `steps` steps of path1 with 1 and 2 local workers."""
-    from granular_multiscale.dem.run import dem_newton_config, prepare_rves
+    from granular_multiscale.dem.run import prepare_rves
+    from granular_multiscale.drivers.fem_dem import dem_newton_config
     from granular_multiscale.fem.triaxial import TriaxialProblem
     from granular_multiscale.paths import LoadPath, load_paths_from_config
 

@@ -45,7 +45,7 @@ from granular_multiscale.config import load_config
 from granular_multiscale.data import read_run
 from granular_multiscale.fem.newton import ConvergenceError
 from granular_multiscale.paths import load_paths_from_config
-from granular_multiscale.surrogate.fem_ml import run_fem_ml
+from granular_multiscale.drivers.fem_ml import run_fem_ml
 from granular_multiscale.surrogate.models import SurrogateModel
 
 from bench_fem_ml_vs_dem import train_elastoplastic_models

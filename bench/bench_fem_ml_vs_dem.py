@@ -55,7 +55,7 @@ def per_step(ds) -> dict:
 
 def run_fem_dem(config, path, packing, workers, logger):
     from granular_multiscale.dem.material import DemMaterialPointSet
-    from granular_multiscale.dem.run import dem_newton_config
+    from granular_multiscale.drivers.fem_dem import dem_newton_config
 
     cfg = dem_newton_config(config)
     problem = TriaxialProblem.from_config(cfg)

@@ -31,7 +31,7 @@ import pandas as pd
 
 from granular_multiscale.config import CONFIG_DIR, load_config
 from granular_multiscale.data import read_run
-from granular_multiscale.dem.run import run_fem_dem
+from granular_multiscale.drivers.fem_dem import run_fem_dem
 
 ROOT = Path(__file__).resolve().parents[1]
 SCALES = {"tiny": "tiny.yaml", "default": "config.yaml"}

@@ -48,6 +48,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "workflow"))
 
+from granular_multiscale.drivers.fem_dem import run_fem_dem_uniform  # noqa: E402
 from granular_multiscale.dem.direct_triaxial import (  # noqa: E402
     REPORT_AT,
     DirectSpec,
@@ -56,7 +57,6 @@ from granular_multiscale.dem.direct_triaxial import (  # noqa: E402
     increments_of,
     peak,
     run_direct,
-    run_fem_dem_uniform,
 )
 from granular_multiscale.dem.rve import RVESpec, prepare_packing  # noqa: E402
 

@@ -2,7 +2,7 @@
 written in the data contract (plus the DEM time split per step). Resumes from its checkpoint."""
 
 from granular_multiscale.config import validate_config
-from granular_multiscale.dem.run import run_fem_dem
+from granular_multiscale.drivers.fem_dem import run_fem_dem
 from granular_multiscale.runlog import setup_logging, timed_rule
 
 

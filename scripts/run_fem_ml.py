@@ -3,7 +3,7 @@
 from granular_multiscale.config import validate_config
 from granular_multiscale.data import write_run
 from granular_multiscale.runlog import setup_logging, timed_rule
-from granular_multiscale.surrogate.fem_ml import run_fem_ml
+from granular_multiscale.drivers.fem_ml import run_fem_ml
 
 
 def main(config, path_name, sigma, tangent_model, tangent, output, log, allow_partial=False) -> None:

@@ -17,7 +17,7 @@ import yaml
 from dem_fixtures import ROOT, TEST_SPHERES, packing, tiny_config
 
 from granular_multiscale.data import read_run
-from granular_multiscale.dem.run import dem_newton_config, run_fem_dem
+from granular_multiscale.drivers.fem_dem import dem_newton_config, run_fem_dem
 
 pytestmark = pytest.mark.slow
 P0 = 1.0e5
@@ -86,7 +86,7 @@ def test_rules_write_the_data_contract(tmp_path):
 
 RUNNER = """
 import pickle, sys
-from granular_multiscale.dem.run import run_fem_dem
+from granular_multiscale.drivers.fem_dem import run_fem_dem
 from granular_multiscale.runlog import setup_logging
 config, packings, output, checkpoint, workers = pickle.load(open(sys.argv[1], "rb"))
 run_fem_dem(config, "p", packings, output, checkpoint, workers, logger=setup_logging(None))

@@ -53,7 +53,7 @@ def test_numbers_given_as_strings_are_read_as_numbers():
 
 def test_fem_ml_newton_overrides_reach_the_solver():
     """surrogate.newton overrides newton key by key for FEM–ML runs (unset keys stay newton's)."""
-    from granular_multiscale.surrogate.fem_ml import fem_ml_config
+    from granular_multiscale.drivers.fem_ml import fem_ml_config
 
     config = validate_config({"newton": {"line_search": True},
                               "surrogate": {"newton": {"acceleration": "anderson", "tangent_repair": "eig_floor"}}})

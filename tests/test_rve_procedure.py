@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from dem_fixtures import packing
 
+from granular_multiscale.drivers.fem_dem import run_fem_dem_uniform
 from granular_multiscale.dem.direct_triaxial import (
     DirectSpec,
     at_strains,
@@ -19,7 +20,6 @@ from granular_multiscale.dem.direct_triaxial import (
     increments_of,
     peak,
     run_direct,
-    run_fem_dem_uniform,
 )
 
 P0 = 1.0e5

@@ -13,7 +13,7 @@ shear components counted twice):
 * Newton iterations per step of every run side by side.
 
 A FEM–ML run that stopped before the end of its path (attribute ``completed = 0``, see
-``surrogate.fem_ml``) is compared over the steps it reached; every table says so
+``drivers.fem_ml``) is compared over the steps it reached; every table says so
 (``completed``, ``steps_compared``).
 """
 

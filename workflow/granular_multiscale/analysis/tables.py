@@ -70,8 +70,8 @@ def first_step(phases: np.ndarray, label: str) -> int | None:
 
 
 # files written before the attr ``material_points``: methods whose driver built a material set of
-# one point per Gauss point even under ``specimen.uniform_field`` (surrogate.fem_ml); the
-# reference drivers (dem.run, scripts/run_fem_reference.py) built problem.n_material_points
+# one point per Gauss point even under ``specimen.uniform_field`` (drivers.fem_ml); the
+# reference drivers (drivers.fem_dem, drivers.reference) built problem.n_material_points
 ALL_POINT_METHOD_PREFIXES = ("fem_ml",)
 
 

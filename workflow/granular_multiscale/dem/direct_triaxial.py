@@ -5,7 +5,7 @@ Run in its own process (YADE rebinds globals on import)::
 
     python -m granular_multiscale.dem.direct_triaxial spec.json packing.yade.gz result.json
 
-or from Python through :func:`run_direct`, which does exactly that. :func:`run_fem_dem_uniform`
+or from Python through :func:`run_direct`, which does exactly that. ``drivers.fem_dem.run_fem_dem_uniform``
 (caller side, no YADE in the calling process) runs the uniform-field FEM–DEM of one RVE
 (issue 13's setting: :func:`fem_dem_config`); :func:`at_strains` and :func:`peak` read q and εv
 of either at chosen axial strains, :func:`increments_of` turns either into a replay.
@@ -388,48 +388,6 @@ def fem_dem_config(n_steps: int = 45, axial_strain: float = 0.045, tolerance: fl
         "load_paths": {"mono": {"segments": [[int(n_steps), float(axial_strain)]]}},
         "training_path": "mono", "validation_path": "mono",
     })
-
-
-def run_fem_dem_uniform(packing: str | Path, config: dict, snapshot_interval: int | None = None,
-                        logger=None) -> dict:
-    """Uniform-field FEM–DEM of one RVE (as ``run.run_fem_dem`` with specimen.uniform_field):
-    returns per step the one point's converged strain and stress, q, εv, axial strain, Newton
-    iterations and material evaluations, the committed strain increments (``dstrain``, what a
-    replay needs to be exact) and the wall time."""
-    import logging
-
-    from ..fem.triaxial import TriaxialProblem
-    from ..paths import load_paths_from_config
-    from .material import SETTINGS_KEYS, DemMaterialPointSet
-    from .run import dem_newton_config
-
-    logger = logger or logging.getLogger("granular_multiscale.dem.direct_triaxial")
-    cfg = dem_newton_config(config)
-    problem = TriaxialProblem.from_config(cfg)
-    path = load_paths_from_config(cfg)["mono"]
-    interval = cfg["dem"]["snapshot_interval"] if snapshot_interval is None else int(snapshot_interval)
-    t0 = time.perf_counter()
-    with DemMaterialPointSet(problem.n_material_points, [packing], {k: cfg["dem"][k] for k in SETTINGS_KEYS},
-                             n_workers=1, snapshot_interval=interval, logger=logger) as material:
-        ds = problem.run(material, path, method="dem", logger=logger, progress=False)
-        dstrain = np.array(material.replay).reshape(-1, 6)
-    stress = ds["stress"].values.mean(axis=1)  # uniform: every Gauss point holds the one RVE's stress
-    strain = ds["strain"].values.mean(axis=1)
-    return {
-        "axial_strain": ds["axial_strain"].values.tolist(),
-        "volumetric_strain": ds["volumetric_strain"].values.tolist(),
-        "q": (0.5 * (stress[:, 0] + stress[:, 1]) - stress[:, 2]).tolist(),
-        "stress": stress.tolist(),
-        "strain": strain.tolist(),
-        "dstrain": dstrain.tolist(),
-        "newton_iterations": ds["newton_iterations"].values.tolist(),
-        "material_evaluations": ds["material_evaluations"].values.tolist(),
-        "cutbacks": ds["cutbacks"].values.tolist(),
-        "wall_time": time.perf_counter() - t0,
-        "snapshot_interval": interval,
-        "settings": {k: cfg["dem"][k] for k in SETTINGS_KEYS},
-        "tolerance": cfg["newton"]["tolerance"],
-    }
 
 
 def increments_of(result: dict, every: float | None = None) -> list:

@@ -1,16 +1,16 @@
-"""FEM–DEM runs and RVE preparation as called by the rule scripts (no Snakemake here).
+"""RVE preparation as called by the rule script (no Snakemake here), and DEM-stage facts of a config.
 
     prepare_rves(config, packing_paths, summary_path, threads, logger)
-    run_fem_dem(config, path_name, packing_paths, output, checkpoint, n_workers, logger)
+
+The FEM–DEM run itself composes the solver with the DEM material-point set, one layer up:
+``granular_multiscale.drivers.fem_dem``.
 """
 
 from __future__ import annotations
 
-import copy
 import json
 import logging
 import math
-import shutil
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -19,19 +19,6 @@ import numpy as np
 
 from ..atomic import atomic_path
 from .rve import RVESpec, prepare_packing
-
-NEWTON_OVERRIDES = ("tolerance", "max_iterations", "max_cutbacks", "line_search", "tangent_repair", "acceleration",
-                    "anderson_depth", "predictor")
-
-
-def dem_newton_config(config: dict) -> dict:
-    """The config a FEM–DEM run uses: ``newton`` with the overrides of ``dem.newton``."""
-    cfg = copy.deepcopy(config)
-    for key in NEWTON_OVERRIDES:
-        if key in cfg["dem"].get("newton", {}):
-            cfg["newton"][key] = cfg["dem"]["newton"][key]
-    return cfg
-
 
 def packing_seeds(config: dict) -> list[int]:
     return [int(config["seed"]) + k for k in range(int(config["dem"]["n_packings"]))]
@@ -81,78 +68,3 @@ def prepare_rves(config: dict, packing_paths: list[str], summary_path: str, thre
     }
     _write_json(Path(summary_path), summary)
     return summary
-
-
-def run_fem_dem(config: dict, path_name: str, packing_paths: list[str], output: str,
-                checkpoint: str | None, n_workers: int, logger: logging.Logger | None = None,
-                dask_client=None):
-    """One FEM–DEM run of a load path, written in the data contract; returns the Dataset."""
-    from ..data import write_run
-    from ..fem.triaxial import TriaxialProblem
-    from ..paths import load_paths_from_config
-    from .material import DemMaterialPointSet
-
-    logger = logger or logging.getLogger("granular_multiscale.dem")
-    cfg = dem_newton_config(config)
-    problem = TriaxialProblem.from_config(cfg)
-    load_path = load_paths_from_config(cfg)[path_name]
-    dem = cfg["dem"]
-    scenes_dir = None
-    if checkpoint:
-        checkpoint = Path(checkpoint)
-        scenes_dir = checkpoint.with_name(checkpoint.name + ".scenes")
-        if not checkpoint.exists() and scenes_dir.exists():
-            shutil.rmtree(scenes_dir)  # snapshots of an older, finished or abandoned run
-    logger.info(
-        "FEM–DEM %s: %d steps, mesh %s (%d Gauss points = RVEs of %d spheres), %s executor with %d workers; "
-        "strain rate %.3g /s (inertial number %.1e), steps per increment %d..%d; Newton tolerance %.1e, "
-        "%d iterations, %d cutbacks",
-        path_name, load_path.n_steps, "x".join(map(str, problem.mesh_elements)), problem.n_material_points,
-        dem["n_spheres"], dem["executor"], n_workers, dem["strain_rate"], inertial_number(cfg),
-        dem["min_steps"], dem["max_steps"], cfg["newton"]["tolerance"], cfg["newton"]["max_iterations"],
-        cfg["newton"]["max_cutbacks"],
-    )
-    t0 = time.perf_counter()
-    with DemMaterialPointSet.from_config(cfg, problem.n_material_points, packing_paths, n_workers=n_workers,
-                                         snapshot_dir=scenes_dir, logger=logger, dask_client=dask_client) as material:
-        t_ready = time.perf_counter()
-        ds = problem.run(material, load_path, method="dem", checkpoint=checkpoint, logger=logger, progress=True)
-    # Totals from the per-step records, so a resumed run counts the steps before its checkpoint
-    # too (the material set itself only saw the steps after the resume).
-    split = {k: float(ds[k].values.sum()) for k in (
-        "dem_time", "dem_cpu_time", "imbalance_time", "overhead_time", "material_time", "snapshot_time",
-        "particle_steps", "trials")}
-    wall = float(ds.attrs["time_run_s"])  # load-step loop across resumes
-    logger.info("RVE workers started and packings loaded in %.1f s%s", t_ready - t0,
-                f"; resume took {ds.attrs['time_resume_s']:.1f} s" if ds.attrs["time_resume_s"] else "")
-    fem_other = max(wall - split["material_time"], 0.0)
-    not_dem = 1.0 - split["dem_time"] / wall if wall > 0 else float("nan")
-    ds.attrs.update({
-        "dem_time_s": split["dem_time"],
-        "dem_cpu_time_s": split["dem_cpu_time"],
-        "dem_imbalance_time_s": split["imbalance_time"],
-        "dem_overhead_time_s": split["overhead_time"],
-        "dem_snapshot_time_s": split["snapshot_time"],
-        "dem_particle_steps": split["particle_steps"],
-        "dem_trials": split["trials"],
-        "dem_wall_time_s": wall,
-        "dem_startup_time_s": t_ready - t0,
-        "dem_share_not_stepping": not_dem,
-        "dem_n_workers": n_workers,
-        "dem_executor": dem["executor"],
-        "dem_strain_rate": dem["strain_rate"],
-        "dem_inertial_number": inertial_number(cfg),
-    })
-    logger.info(
-        "time split: wall %.1f s = DEM stepping %.1f s (%.1f %%) + worker imbalance %.1f s + rollback/transfer/Python "
-        "%.1f s (%.1f %%, of which snapshots %.1f s) + FEM and the rest %.1f s; not DEM stepping: %.1f %%; "
-        "%.3g particle-steps (%.2f µs of CPU each), %d RVE trials",
-        wall, split["dem_time"], 100 * split["dem_time"] / wall, split["imbalance_time"], split["overhead_time"],
-        100 * split["overhead_time"] / wall, split["snapshot_time"], fem_other, 100 * not_dem, split["particle_steps"],
-        1e6 * split["dem_cpu_time"] / max(split["particle_steps"], 1), split["trials"],
-    )
-    write_run(ds, output, config)
-    if scenes_dir is not None and scenes_dir.exists():
-        shutil.rmtree(scenes_dir)
-    logger.info("wrote %s", output)
-    return ds

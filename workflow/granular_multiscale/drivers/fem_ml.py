@@ -18,7 +18,7 @@ import xarray as xr
 from ..fem.newton import ConvergenceError
 from ..fem.triaxial import TriaxialProblem
 from ..paths import load_paths_from_config
-from .material import SurrogateMaterial
+from ..surrogate.material import SurrogateMaterial
 
 
 def fem_ml_config(config: dict) -> dict:
