@@ -108,6 +108,14 @@ def _check_consistency(config: dict) -> None:
             raise ConfigError(
                 f"config key '{key}': unknown path {config[key]!r}; defined paths: {sorted(paths)}"
             )
+    for source in config["surrogate"]["training_sources"]:
+        kind, _, name = source.rpartition(":")
+        if kind and name not in config.get("rve_paths", {}).get("sets", {}):
+            raise ConfigError(f"config key 'surrogate.training_sources': {source!r} names no set of 'rve_paths.sets' "
+                              f"(defined: {sorted(config.get('rve_paths', {}).get('sets', {}))})")
+        if not kind and name not in paths:
+            raise ConfigError(f"config key 'surrogate.training_sources': unknown load path {name!r}; defined paths: "
+                              f"{sorted(paths)}")
     study = config["tolerance_study"]
     if study["path"] not in paths:
         raise ConfigError(f"config key 'tolerance_study.path': unknown path {study['path']!r}; defined paths: "

@@ -12,7 +12,13 @@
 SURROGATE = config["surrogate"]
 TRAINING_PATH = config["training_path"]
 VALIDATION_PATH = config["validation_path"]
-ML_PATHS = list(dict.fromkeys([VALIDATION_PATH, TRAINING_PATH]))
+# what trains the networks: reference runs of load paths and RVE-path sets ("rve_paths:<set>")
+TRAINING_SOURCES = SURROGATE["training_sources"] or [TRAINING_PATH]
+TRAINING_RUN_PATHS = [s for s in TRAINING_SOURCES if not s.startswith("rve_paths:")]
+TRAINING_RVE_SETS = [s.split(":", 1)[1] for s in TRAINING_SOURCES if s.startswith("rve_paths:")]
+# every load path the training did not use is a validation case; FEM–ML runs every path
+VALIDATION_PATHS = [p for p in PATH_NAMES if p not in TRAINING_RUN_PATHS]
+ML_PATHS = list(dict.fromkeys([VALIDATION_PATH, *VALIDATION_PATHS, *TRAINING_RUN_PATHS, TRAINING_PATH]))
 # network name -> (targets, uses the history variables)
 NETWORKS = {
     "sigma": ("sigma", True),
