@@ -1,28 +1,27 @@
-"""Rule dataset: the training path's reference run -> train.h5 / heldout.h5 (split by Gauss point)."""
+"""Rule dataset: the training sources (reference runs, RVE-path sets) -> train.h5 / heldout.h5,
+held out by trajectory class."""
 
 from granular_multiscale.data import read_run
 from granular_multiscale.runlog import setup_logging, timed_rule
-from granular_multiscale.surrogate.dataset import build_dataset, summary, write_dataset
+from granular_multiscale.surrogate.dataset import build_dataset_from_sources, summary, write_dataset
 
 
-def main(reference: str, train_out: str, heldout_out: str, seed: int, train_fraction: float, split: str,
-         log: str | None) -> None:
+def main(sources: list[str], train_out: str, heldout_out: str, seed: int, train_fraction: float, split: str,
+         history_tolerance: float, log: str | None) -> None:
     logger = setup_logging(log)
     with timed_rule(logger, "dataset"):
-        run = read_run(reference, required=("strain", "stress", "tangent"))
-        train, heldout = build_dataset(run, train_fraction, seed, source=reference, split=split)
+        runs = [(path, read_run(path, required=("strain", "stress", "tangent"))) for path in sources]
+        for path, run in runs:
+            logger.info("source %s: method %s, %d steps x %d trajectories", path, run.attrs.get("method", "?"),
+                        run.sizes["step"], run.sizes["gp"])
+        train, heldout = build_dataset_from_sources(runs, train_fraction, seed, split=split,
+                                                    history_tolerance=history_tolerance)
         write_dataset(train, train_out)
         write_dataset(heldout, heldout_out)
-        logger.info("dataset from %s (method %s): %s", reference, run.attrs.get("method", "?"), summary(train, heldout))
+        logger.info("dataset: %s", summary(train, heldout))
 
 
 if "snakemake" in globals():
-    main(
-        snakemake.input[0],  # noqa: F821
-        snakemake.output.train,  # noqa: F821
-        snakemake.output.heldout,  # noqa: F821
-        snakemake.params.seed,  # noqa: F821
-        snakemake.params.train_fraction,  # noqa: F821
-        snakemake.params.split,  # noqa: F821
-        snakemake.log[0],  # noqa: F821
-    )
+    sm = snakemake  # noqa: F821
+    main(list(sm.input.sources), sm.output.train, sm.output.heldout, sm.params.seed, sm.params.train_fraction,
+         sm.params.split, sm.params.history_tolerance, sm.log[0])

@@ -1,7 +1,8 @@
-"""Surrogate dataset: split by Gauss point, scaling fitted on training points, features/targets, files."""
+"""Surrogate dataset: held out by trajectory class, scaling fitted on training points, features/targets, files."""
 
 import numpy as np
 import pytest
+import xarray as xr
 
 from granular_multiscale.config import validate_config
 from granular_multiscale.history import history_from_sequence
@@ -13,13 +14,16 @@ from granular_multiscale.surrogate.dataset import (
     TANGENT_TARGETS,
     DatasetError,
     build_dataset,
+    build_dataset_from_sources,
     features,
     range_extremes,
     read_dataset,
     scaling,
     split_gauss_points,
     split_of,
+    split_trajectories,
     targets,
+    trajectory_classes,
     write_dataset,
 )
 from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
@@ -59,7 +63,7 @@ def test_range_extremes_and_a_split_that_keeps_them_in_training():
         train, heldout = split_gauss_points(6, 0.7, seed, always_train=[1, 2, 3, 4])
         assert set(train) >= {1, 2, 3, 4} and train.size == 4 and heldout.size == 2
         np.testing.assert_array_equal(np.sort(np.concatenate([train, heldout])), np.arange(6))
-    with pytest.raises(DatasetError, match="5 Gauss points must train .* room for 4 of 6"):
+    with pytest.raises(DatasetError, match="5 trajectories must train .* room for 4 of 6"):
         split_gauss_points(6, 0.7, 0, always_train=[0, 1, 2, 3, 4])
 
 
@@ -160,3 +164,58 @@ def test_synthetic_run_is_the_material_response(run):
     s, D = ep.evaluate(run.strain.sel(step=1).values)
     np.testing.assert_allclose(run.stress.sel(step=1).values, s)
     np.testing.assert_allclose(run.tangent.sel(step=1).values, tangent_to_upper(D))
+
+
+def _mirror(strain):
+    """The strain history of the mirror-image point: x -> -x (ε13, ε12 change sign), then x <-> y."""
+    m = strain.copy()
+    m[..., 4] *= -1
+    m[..., 5] *= -1
+    return m[..., [1, 0, 2, 4, 3, 5]]
+
+
+def test_trajectory_classes_group_mirror_images_and_nothing_else():
+    rng = np.random.default_rng(3)
+    base = np.cumsum(rng.normal(0, 1e-3, (30, 1, 6)), axis=0)
+    other = np.cumsum(rng.normal(0, 1e-3, (30, 1, 6)), axis=0)
+    near = base * 1.001  # 0.1 % of the largest strain away: the same history at 2 %
+    far = base.copy()
+    far[15:, :, 2] += 0.05 * np.abs(base).max()  # 5 % away in ε33 from step 15 on
+    strain = np.concatenate([base, _mirror(base), other, near, far, _mirror(other)], axis=1)
+    classes = trajectory_classes(strain, 0.02)
+    np.testing.assert_array_equal(classes, [0, 0, 1, 0, 2, 1])
+    # at a tolerance below the 0.1 % step, `near` is a history of its own; mirrors stay together (round-off)
+    np.testing.assert_array_equal(trajectory_classes(strain, 1e-4), [0, 0, 1, 2, 3, 1])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_trajectory_split_never_cuts_a_class(seed):
+    classes = np.repeat(np.arange(10), [1, 2, 3, 4, 1, 2, 3, 4, 1, 2])  # 23 trajectories
+    train, heldout = split_trajectories(classes, 0.75, seed)
+    assert not set(classes[train]) & set(classes[heldout])
+    np.testing.assert_array_equal(np.sort(np.concatenate([train, heldout])), np.arange(23))
+    assert abs(train.size - 0.75 * 23) <= 4  # whole classes of at most 4 trajectories
+    # every trajectory its own class: the paper's split by Gauss point, exactly
+    for a, b in zip(split_trajectories(np.arange(40), 0.75, seed), split_gauss_points(40, 0.75, seed)):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(DatasetError, match="2 distinct trajectories"):
+        split_trajectories(np.zeros(5, dtype=int), 0.75, seed)
+
+
+def test_sources_of_different_lengths_are_padded_and_masked(run):
+    short = run.isel(step=slice(0, 20), gp=slice(0, 6)).assign_attrs(method="rve_paths")
+    train, heldout = build_dataset_from_sources([("long", run), ("short", short)], 0.5, seed=1, history_tolerance=1e-6)
+    both = xr.concat([train, heldout], dim="gp", data_vars="all")
+    assert both.sizes["gp"] == run.sizes["gp"] + 6 and both.sizes["step"] == run.sizes["step"]
+    padded = both.isel(gp=both.source.values == "short")
+    assert not padded.valid.values[20:].any() and padded.valid.values[:20].all()
+    assert np.isnan(padded.stress.values[20:]).all()
+    # features/targets hold the valid samples only, and the scaling ignores the padding
+    n_valid = int(train.valid.values.sum())
+    assert features(train).shape == (n_valid, len(FEATURES)) and np.isfinite(targets(train, "sigma")).all()
+    assert np.isfinite(train.stress_min.values).all()
+    # each source is split on its own: both sides hold trajectories of both
+    for side in (train, heldout):
+        assert set(side.source.values) == {"long", "short"}
+    # the mesh Gauss points of the run source on each side, for the error maps of validation runs
+    assert set(train.attrs["train_gp"]) == set(train.source_gp.values[train.source.values == "long"])

@@ -109,9 +109,13 @@ def read_run(path: str | Path, required=REQUIRED_VARIABLES) -> xr.Dataset:
     missing = [v for v in required if v not in ds.variables]
     if missing:
         raise DataFileError(f"run file {path} lacks variables {missing}")
+    # an RVE-path set marks the steps after an RVE lost its contact network: valid False, stress NaN
+    valid = ds["valid"].transpose("step", "gp").values.astype(bool) if "valid" in ds else None
     for name in ("strain", "stress"):
-        if name in ds and not np.isfinite(ds[name].values).all():
-            raise DataFileError(f"run file {path}: variable '{name}' holds non-finite values")
+        if name in ds:
+            finite = np.isfinite(ds[name].transpose("step", "gp", ...).values).all(axis=-1)
+            if not (finite | ~valid).all() if valid is not None else not finite.all():
+                raise DataFileError(f"run file {path}: variable '{name}' holds non-finite values")
     return ds
 
 

@@ -1,7 +1,8 @@
 # Surrogate stage: dataset -> NNσ/ND training (with and without history variables) -> FEM–ML
 # runs -> accuracy tables against the reference runs.
 #
-#   dataset                {OUT}/dataset/train.h5, heldout.h5 from the training path's reference run
+#   dataset                {OUT}/dataset/train.h5, heldout.h5 from the training sources (surrogate.training_sources:
+#                          reference runs of load paths, RVE-path sets), held out by trajectory class
 #   train_<network>        {OUT}/models/nn_<network>.pt, {OUT}/training/<network>.csv (loss per epoch),
 #                          <network>_mae.csv (final MAE per component), <network>_loss.png
 #                          networks: sigma, tangent (9 inputs), sigma_nohist, tangent_nohist (6 inputs)
@@ -53,7 +54,7 @@ def fem_ml_depends(wc):
 
 rule dataset:
     input:
-        reference_run(TRAINING_PATH),
+        sources=[reference_run(p) for p in TRAINING_RUN_PATHS] + [f"{OUT}/rve_paths/{s}.h5" for s in TRAINING_RVE_SETS],
     output:
         train=f"{OUT}/dataset/train.h5",
         heldout=f"{OUT}/dataset/heldout.h5",
@@ -65,6 +66,7 @@ rule dataset:
         seed=config["seed"],
         train_fraction=SURROGATE["train_fraction"],
         split=SURROGATE["split"],
+        history_tolerance=SURROGATE["history_tolerance"],
     threads: 1
     script:
         "../../scripts/surrogate_dataset.py"

@@ -49,13 +49,18 @@ def read_runs(files: Mapping[str, str | Path]) -> dict[str, xr.Dataset]:
 
 
 def gauss_point_split(train_file: str | Path, heldout_file: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Training and held-out Gauss-point ids from the dataset files (their ``gp`` coordinate)."""
+    """Mesh Gauss-point ids whose reference-run histories trained / were held out (attrs
+    ``train_gp``/``heldout_gp`` of the dataset files; an older file: its ``gp`` coordinate). Both
+    empty when only RVE paths trained: then every point of a validation run is unseen."""
     ids = []
-    for path in (train_file, heldout_file):
+    for path, key in ((train_file, "train_gp"), (heldout_file, "heldout_gp")):
         with xr.open_dataset(path, engine=data.ENGINE) as ds:
-            if "gp" not in ds.coords:
-                raise data.DataFileError(f"dataset file {path} has no 'gp' coordinate")
-            ids.append(np.asarray(ds["gp"].values, dtype=int))
+            if key in ds.attrs:
+                ids.append(np.atleast_1d(np.asarray(ds.attrs[key], dtype=int)))
+            elif "gp" in ds.coords:
+                ids.append(np.asarray(ds["gp"].values, dtype=int))
+            else:
+                raise data.DataFileError(f"dataset file {path} has neither attr '{key}' nor a 'gp' coordinate")
     return ids[0], ids[1]
 
 
@@ -547,3 +552,38 @@ def read_headline(path, tolerance_study=None) -> dict | None:
         headline["reference_convergence"] = self_consistency(tolerance_study, headline["reference_newton"])
         headline["display"] = headline_display(headline)
     return headline
+
+
+# --------------------------------------------------------------------------------------
+# validation per load path and load phase
+
+
+def make_validation_table(cases: Sequence[tuple[str, str, Mapping[str, str]]], out_csv, out_html, *,
+                          reference_label: str) -> pd.DataFrame:
+    """The FEM–ML runs of every path against its reference run, per method and load phase
+    (``validation.phase_errors``). ``cases``: (path, role, {label: run file}) with the reference
+    run first in each mapping; role 'validation path' or 'training path' (grey rows in the HTML:
+    the in-sample error)."""
+    from . import validation
+
+    parts = []
+    for path, role, files in cases:
+        labels = list(files)
+        reference = data.read_run(files[labels[0]])
+        runs = {label: data.read_run(files[label]) for label in labels[1:]}
+        parts.append(validation.phase_errors(reference, runs, path=path, role=role))
+    table = pd.concat(parts, ignore_index=True)
+    tables.write_csv(table, out_csv)
+    tables.write_html_table(
+        validation.display_table(table), out_html, headers=validation.HEADERS,
+        title=f"FEM–ML against {reference_label}, per load path and load phase",
+        reference_rows=np.flatnonzero(table["role"].to_numpy() == "training path").tolist(),
+        note=("Each cycle of a path is numbered (unloading 1, reloading 1, unloading 2, ...); 'all' is load steps "
+              "1..n. Top force: the largest and the mean |F − F_ref| over the phase's steps, in % of the "
+              "reference's peak |F| over the path; volumetric strain: the largest |εv − εv_ref| in % of the "
+              "reference's peak |εv|; stress MAE: mean |σ − σ_ref| over the phase's steps, the Gauss points "
+              "and the six components. A run that stopped early is compared over the steps it reached "
+              "('–': a phase it never reached). Grey rows: paths whose reference runs trained the networks "
+              "(in-sample error)."),
+    )
+    return table

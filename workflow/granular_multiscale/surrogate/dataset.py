@@ -1,24 +1,33 @@
-"""Training data of the surrogates: a reference run split by Gauss point, with min–max scaling.
+"""Training data of the surrogates: reference runs and RVE-path sets, held out by trajectory, min–max scaled.
 
-Every (step, Gauss point) of the reference run of the training path is one sample:
+Every (step, trajectory) of every training source is one sample:
 
     features  strain_11 .. strain_12 (tensorial, Voigt order of ``tensors.COMP``), phi1, phi2, phi3
     targets   stress_11 .. stress_12 (Pa, tension positive)             -> NNσ
               tangent_1111 .. tangent_1212 (21 upper-triangle entries)  -> ND
 
-φ1–φ3 are recomputed from each point's converged strain sequence (``history.history_from_sequence``),
-exactly as the surrogate material accumulates them during an FEM–ML run.
+A *trajectory* is one Gauss point of a reference run (FEM–DEM or the elastoplastic model) or
+one RVE of an RVE-path set (``dem.strain_paths``). φ1–φ3 are recomputed from each trajectory's
+strain sequence (``history.history_from_sequence``), exactly as the surrogate material
+accumulates them during an FEM–ML run.
 
-The Gauss points (not the samples) are split, seeded: a held-out point's whole history is
-unseen in training, as in the paper (1500/500 points). The min–max scaling to (0, 1) is
-fitted on the training points only and stored in both files, as are the lists of training
-and held-out Gauss points, so figures and metrics can tell them apart.
+Held out by trajectory class. On a symmetric mesh with one packing, mirrored Gauss points follow
+the same strain history; a held-out mirror image of a training point is a copy, not a test.
+:func:`trajectory_classes` groups the trajectories of a source whose histories agree, in the
+invariants of the square cross-section's symmetry, within ``surrogate.history_tolerance`` of the
+source's largest strain; :func:`split_trajectories` then holds out whole classes (seeded, per
+source, so every source is on both sides). The min–max scaling to (0, 1) is fitted on the
+training samples only.
 
-Files (``train.h5``, ``heldout.h5``) follow the run-file contract: coordinates ``step``,
-``gp`` (the original Gauss-point ids of that subset), ``comp``, ``tcomp``, ``hist``,
-``feature``; variables ``strain``, ``history``, ``stress``, ``tangent``, ``gp_position``
-and the scaling ``feature_min/max(feature)``, ``stress_min/max(comp)``,
-``tangent_min/max(tcomp)``.
+Files (``train.h5``, ``heldout.h5``) follow the run-file contract: coordinates ``step``, ``gp``
+(the trajectory: with one run as the only source, its Gauss-point id; otherwise a running index),
+``comp``, ``tcomp``, ``hist``, ``feature``, and per trajectory ``source`` (file), ``source_gp``
+(Gauss point or RVE in that file) and ``trajectory_class``; variables ``strain``, ``history``,
+``stress``, ``tangent``, ``valid(step, gp)`` (False on the padding of a source with fewer steps
+and after an RVE lost its contact network), ``gp_position`` (run sources) and the scaling
+``feature_min/max(feature)``, ``stress_min/max(comp)``, ``tangent_min/max(tcomp)``. Attrs
+``train_gp``/``heldout_gp``: the mesh Gauss points of the run sources on each side (what the
+error maps of a validation run on the same mesh colour).
 """
 
 from __future__ import annotations
@@ -84,34 +93,100 @@ def range_extremes(features: np.ndarray) -> np.ndarray:
 def split_gauss_points(n_gp: int, train_fraction: float, seed: int, always_train=()) -> tuple[np.ndarray, np.ndarray]:
     """Seeded random split of Gauss points 0..n_gp-1 into sorted (train, held-out) index arrays;
     the points in ``always_train`` are training points, the rest of the training set is drawn."""
+    return split_trajectories(np.arange(n_gp), train_fraction, seed, always_train)
+
+
+def split_trajectories(classes: np.ndarray, train_fraction: float, seed: int, always_train=()) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded split of trajectories 0..n-1 with class labels ``classes[n]`` into sorted (train,
+    held-out) index arrays that never cut a class: whole classes are drawn (in a seeded random
+    order) until the training side holds ``train_fraction`` of the trajectories. The classes of the
+    trajectories in ``always_train`` train. With every trajectory its own class this is the
+    paper's split by Gauss point."""
     if not 0.0 < train_fraction < 1.0:
         raise ValueError(f"surrogate.train_fraction must be in (0, 1), got {train_fraction}")
-    if n_gp < 2:
-        raise DatasetError(f"need at least 2 Gauss points to split into train and held-out, got {n_gp}")
-    n_train = min(max(int(round(train_fraction * n_gp)), 1), n_gp - 1)
-    forced = np.unique(np.asarray(always_train, dtype=np.int64))
-    if forced.size > n_train:
-        raise DatasetError(f"{forced.size} Gauss points must train (they span the feature range) but "
-                           f"surrogate.train_fraction leaves room for {n_train} of {n_gp}")
-    order = np.random.default_rng(seed).permutation(n_gp)
-    rest = order[~np.isin(order, forced)]
-    train = np.concatenate([forced, rest[: n_train - forced.size]])
-    return np.sort(train), np.sort(rest[n_train - forced.size:])
+    classes = np.asarray(classes)
+    n = classes.size
+    labels, inverse = np.unique(classes, return_inverse=True)
+    if labels.size < 2:
+        raise DatasetError(f"need at least 2 distinct trajectories to split into train and held-out, got {labels.size} "
+                           f"(of {n} trajectories)")
+    n_train = min(max(int(round(train_fraction * n)), 1), n - 1)
+    forced = np.unique(inverse[np.asarray(always_train, dtype=np.int64)])
+    sizes = np.bincount(inverse, minlength=labels.size)
+    if sizes[forced].sum() > n_train:
+        raise DatasetError(f"{sizes[forced].sum()} trajectories must train (they span the feature range) but "
+                           f"surrogate.train_fraction leaves room for {n_train} of {n}")
+    order = np.random.default_rng(seed).permutation(labels.size)
+    chosen = list(forced)
+    count = int(sizes[forced].sum())
+    for c in order[~np.isin(order, forced)]:
+        if count >= n_train:
+            break
+        if count + sizes[c] <= n_train or count == 0:
+            chosen.append(c)
+            count += sizes[c]
+    if len(chosen) == labels.size:  # one class holds nearly everything: keep one class out
+        chosen.remove(max(set(chosen) - set(forced), key=lambda c: -sizes[c]))
+    train = np.isin(inverse, chosen)
+    return np.flatnonzero(train), np.flatnonzero(~train)
+
+
+def symmetry_invariants(strain: np.ndarray) -> np.ndarray:
+    """[step, gp, 6] strain invariants under the square cross-section's symmetries (mirror x, mirror
+    y, swap x and y): ε33, ε11 + ε22, |ε11 − ε22|, |ε12|, and the smaller and larger of |ε13|, |ε23|."""
+    e = np.asarray(strain)
+    a13, a23 = np.abs(e[..., 4]), np.abs(e[..., 3])
+    return np.stack([e[..., 2], e[..., 0] + e[..., 1], np.abs(e[..., 0] - e[..., 1]), np.abs(e[..., 5]),
+                     np.minimum(a13, a23), np.maximum(a13, a23)], axis=-1)
+
+
+def trajectory_classes(strain: np.ndarray, tolerance: float) -> np.ndarray:
+    """Class label per trajectory of ``strain[step, gp, 6]``: trajectories whose symmetry invariants
+    differ by less than ``tolerance`` × (largest |strain| of the set) at every step are one class
+    (and, transitively, their neighbours: single linkage). Labels 0..k-1 in order of first member."""
+    inv = symmetry_invariants(strain).transpose(1, 0, 2).reshape(strain.shape[1], -1)
+    scale = float(np.abs(strain).max()) or 1.0
+    parent = np.arange(inv.shape[0])
+
+    def root(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i in range(inv.shape[0] - 1):  # row by row: memory O(n), fine for the paper's 2000 points
+        close = np.flatnonzero(np.abs(inv[i + 1:] - inv[i]).max(axis=1) < tolerance * scale) + i + 1
+        for j in close:
+            ri, rj = root(i), root(j)
+            if ri != rj:
+                parent[max(ri, rj)] = min(ri, rj)
+    roots = np.array([root(i) for i in range(inv.shape[0])])
+    return np.unique(roots, return_inverse=True)[1]
 
 
 def minmax(values: np.ndarray, axis) -> tuple[np.ndarray, np.ndarray]:
     return np.min(values, axis=axis), np.max(values, axis=axis)
 
 
-def _check_finite(run: xr.Dataset, name: str, source: str) -> None:
+def _check_finite(run: xr.Dataset, name: str, source: str, valid: np.ndarray | None = None) -> None:
     values = run[name].values
     bad = ~np.isfinite(values)
+    if valid is not None:
+        bad &= valid.reshape(valid.shape + (1,) * (bad.ndim - valid.ndim))
     if bad.any():
         step_i, gp_i = np.argwhere(bad)[0][:2]
         raise DatasetError(
             f"{source}: variable '{name}' is not finite at step {run.step.values[step_i]}, "
             f"gp {run.gp.values[gp_i]} ({int(bad.any(axis=-1).sum())} (step, gp) entries in all)"
         )
+
+
+def _valid_of(run: xr.Dataset) -> np.ndarray:
+    """[step, gp] samples a source offers: all, or those its ``valid`` marks (an RVE-path set marks
+    the steps after an RVE lost its contact network)."""
+    if "valid" in run:
+        return run["valid"].transpose("step", "gp").values.astype(bool)
+    return np.ones((run.sizes["step"], run.sizes["gp"]), dtype=bool)
 
 
 def _check_contract(run: xr.Dataset, source: str) -> None:
@@ -126,77 +201,145 @@ def _check_contract(run: xr.Dataset, source: str) -> None:
         raise DatasetError(f"{source}: coordinate 'tcomp' is {list(run.tcomp.values)}, expected {list(TCOMP)}")
     if run.sizes["step"] < 2:
         raise DatasetError(f"{source}: a dataset needs at least 2 steps, the run has {run.sizes['step']}")
-    for name in ("strain", "stress", "tangent"):
-        _check_finite(run, name, source)
+    valid = _valid_of(run)
+    _check_finite(run, "strain", source)
+    for name in ("stress", "tangent"):
+        _check_finite(run, name, source, valid)
+
+
+def _pad(values: np.ndarray, n_steps: int, fill) -> np.ndarray:
+    """Extend [step, ...] to n_steps along the step axis: ``fill`` = 'last' repeats the last step."""
+    missing = n_steps - values.shape[0]
+    if missing <= 0:
+        return values
+    tail = np.repeat(values[-1:], missing, axis=0) if isinstance(fill, str) else np.full((missing, *values.shape[1:]), fill)
+    return np.concatenate([values, tail.astype(values.dtype)])
 
 
 def build_dataset(run: xr.Dataset, train_fraction: float, seed: int, source: str = "reference run",
-                  split: str = "random") -> tuple[xr.Dataset, xr.Dataset]:
-    """Reference run (data contract) -> (train, held-out) datasets with the train-fitted scaling.
+                  split: str = "random", history_tolerance: float = 0.0) -> tuple[xr.Dataset, xr.Dataset]:
+    """One reference run (data contract) -> (train, held-out) datasets; see :func:`build_dataset_from_sources`.
+    ``history_tolerance`` 0 makes every Gauss point its own class (the paper's split by point)."""
+    return build_dataset_from_sources([(source, run)], train_fraction, seed, split=split,
+                                      history_tolerance=history_tolerance)
 
-    split: 'random' draws the training points (the paper); 'cover_range' first puts every point
-    at which a feature reaches its minimum or maximum into the training set, so the min–max
-    scaling spans what the specimen does; the rest is drawn as before."""
+
+def build_dataset_from_sources(sources, train_fraction: float, seed: int, split: str = "random",
+                               history_tolerance: float = 0.02) -> tuple[xr.Dataset, xr.Dataset]:
+    """Training sources [(name, Dataset)] -> (train, held-out) datasets with the train-fitted scaling.
+
+    Each source is a reference run or an RVE-path set (one ``gp`` per trajectory). Trajectories
+    are grouped into classes of equal history (:func:`trajectory_classes`, per source) and the
+    classes are split per source (:func:`split_trajectories`), seeded by ``seed`` + source index.
+    split: 'random' draws the training classes; 'cover_range' first puts every class holding a
+    trajectory at which a feature reaches its minimum or maximum into training, so the min–max
+    scaling spans what the sources do. Sources with fewer steps are padded (``valid`` False)."""
     if split not in SPLITS:
         raise ValueError(f"surrogate.split must be one of {SPLITS}, got {split!r}")
-    _check_contract(run, source)
-    run = run.transpose("step", "gp", ...)
-    strain = run["strain"].values
-    history = history_from_sequence(strain)  # [step, gp, 3], φ of each converged step
-    stress = run["stress"].values
-    tangent = run["tangent"].values
-    n_gp = run.sizes["gp"]
-    features = np.concatenate([strain, history], axis=-1)
-    always_train = range_extremes(features) if split == "cover_range" else ()
-    train_idx, heldout_idx = split_gauss_points(n_gp, train_fraction, seed, always_train)
-    gp_ids = run.gp.values
+    if not sources:
+        raise DatasetError("no training sources (config key 'surrogate.training_sources')")
+    n_steps = max(run.sizes["step"] for _, run in sources)
+    parts = {k: [] for k in ("strain", "history", "stress", "tangent", "valid", "source", "source_gp", "klass", "train",
+                             "position", "is_run")}
+    n_classes, offset, extremes = 0, 0, []
+    for k, (name, run) in enumerate(sources):
+        _check_contract(run, name)
+        run = run.transpose("step", "gp", ...)
+        strain = run["strain"].values
+        valid = _valid_of(run)
+        stress = np.where(valid[..., None], run["stress"].values, np.nan)
+        tangent = np.where(valid[..., None], run["tangent"].values, np.nan)
+        history = history_from_sequence(strain)  # [step, gp, 3], φ of each converged step
+        classes = (trajectory_classes(strain, history_tolerance) if history_tolerance > 0
+                   else np.arange(run.sizes["gp"]))
+        feats = np.concatenate([strain, history], axis=-1)
+        always = range_extremes(np.where(valid[..., None], feats, np.nan)) if split == "cover_range" else ()
+        train_idx, _ = split_trajectories(classes, train_fraction, seed + k, always)
+        is_train = np.zeros(run.sizes["gp"], dtype=bool)
+        is_train[train_idx] = True
+        is_run = str(run.attrs.get("method", "")) != "rve_paths"
+        for key, values in (("strain", _pad(strain, n_steps, "last")), ("history", _pad(history, n_steps, "last")),
+                            ("stress", _pad(stress, n_steps, np.nan)), ("tangent", _pad(tangent, n_steps, np.nan)),
+                            ("valid", _pad(valid, n_steps, False))):
+            parts[key].append(values)
+        parts["source"].append(np.full(run.sizes["gp"], str(name), dtype=object))
+        parts["source_gp"].append(run.gp.values.astype(np.int64))
+        parts["klass"].append(classes + n_classes)
+        parts["train"].append(is_train)
+        parts["is_run"].append(np.full(run.sizes["gp"], is_run))
+        parts["position"].append(run["gp_position"].transpose("gp", ...).values if "gp_position" in run
+                                 else np.full((run.sizes["gp"], 3), np.nan))
+        extremes.extend(offset + np.asarray(always, dtype=np.int64))
+        n_classes += int(classes.max()) + 1
+        offset += run.sizes["gp"]
+    cat = {k: np.concatenate(v, axis=1 if k in ("strain", "history", "stress", "tangent", "valid") else 0)
+           for k, v in parts.items()}
+    train_idx, heldout_idx = np.flatnonzero(cat["train"]), np.flatnonzero(~cat["train"])
+    valid = cat["valid"]
 
-    f_min, f_max = minmax(features[:, train_idx].reshape(-1, len(FEATURES)), axis=0)
-    s_min, s_max = minmax(stress[:, train_idx].reshape(-1, 6), axis=0)
-    t_min, t_max = minmax(tangent[:, train_idx].reshape(-1, 21), axis=0)
+    def train_minmax(values):
+        samples = values[:, train_idx][valid[:, train_idx]]
+        return minmax(samples, axis=0)
 
+    features_all = np.concatenate([cat["strain"], cat["history"]], axis=-1)
+    f_min, f_max = train_minmax(features_all)
+    s_min, s_max = train_minmax(cat["stress"])
+    t_min, t_max = train_minmax(cat["tangent"])
+    one_run = len(sources) == 1 and bool(cat["is_run"][0])
+    gp_ids = cat["source_gp"] if one_run else np.arange(cat["source_gp"].size)
+    first = sources[0][1]
     base = xr.Dataset(
         {
-            "strain": (("step", "gp", "comp"), strain, {"units": "1", "long_name": "total strain, tensorial shear"}),
-            "history": (("step", "gp", "hist"), history, {"units": "1", "long_name": "history variables φ1–φ3 of the converged strain sequence"}),
-            "stress": (("step", "gp", "comp"), stress, {"units": "Pa", "long_name": "Cauchy stress, tension positive"}),
-            "tangent": (("step", "gp", "tcomp"), tangent, {"units": "Pa", "long_name": "upper triangle of the 6×6 Voigt tangent on engineering strain" + (
+            "strain": (("step", "gp", "comp"), cat["strain"], {"units": "1", "long_name": "total strain, tensorial shear"}),
+            "history": (("step", "gp", "hist"), cat["history"], {"units": "1", "long_name": "history variables φ1–φ3 of the converged strain sequence"}),
+            "stress": (("step", "gp", "comp"), cat["stress"], {"units": "Pa", "long_name": "Cauchy stress, tension positive"}),
+            "tangent": (("step", "gp", "tcomp"), cat["tangent"], {"units": "Pa", "long_name": "upper triangle of the 6×6 Voigt tangent on engineering strain" + (
                 # a run whose tangent is not symmetric stores its symmetric part here (data module)
-                "; the symmetric part of the run's non-symmetric tangent (tangent_full)" if "tangent_full" in run else "")}),
-            "feature_min": (("feature",), f_min, {"long_name": "minimum of each feature over the training points"}),
-            "feature_max": (("feature",), f_max, {"long_name": "maximum of each feature over the training points"}),
+                "; the symmetric part of the run's non-symmetric tangent (tangent_full)" if any("tangent_full" in r for _, r in sources) else "")}),
+            "valid": (("step", "gp"), valid, {"long_name": "the sample exists (not padding, RVE still in contact)"}),
+            "gp_position": (("gp", "xyz"), cat["position"], {"units": "m", "long_name": "Gauss-point position (NaN for an RVE path)"}),
+            "feature_min": (("feature",), f_min, {"long_name": "minimum of each feature over the training samples"}),
+            "feature_max": (("feature",), f_max, {"long_name": "maximum of each feature over the training samples"}),
             "stress_min": (("comp",), s_min, {"units": "Pa"}),
             "stress_max": (("comp",), s_max, {"units": "Pa"}),
             "tangent_min": (("tcomp",), t_min, {"units": "Pa"}),
             "tangent_max": (("tcomp",), t_max, {"units": "Pa"}),
         },
         coords={
-            "step": run.step.values,
+            "step": np.arange(n_steps) if len(sources) > 1 else first.step.values,
             "gp": gp_ids,
             "comp": list(COMP),
             "tcomp": list(TCOMP),
             "hist": list(HIST),
             "feature": list(FEATURES),
+            "xyz": ["x", "y", "z"],
+            "source": ("gp", cat["source"].astype(str)),
+            "source_gp": ("gp", cat["source_gp"]),
+            "trajectory_class": ("gp", cat["klass"]),
         },
     )
-    for name in ("gp_position", "axial_strain", "phase", "top_force", "volumetric_strain"):
-        if name in run:
-            base[name] = run[name]
+    if one_run:
+        for name in ("axial_strain", "phase", "top_force", "volumetric_strain"):
+            if name in first:
+                base[name] = first[name]
+    mesh_points = lambda idx: np.unique(cat["source_gp"][idx][cat["is_run"][idx]]).astype(np.int64)  # noqa: E731
     attrs = {
         "title": "surrogate dataset",
-        "source": str(source),
-        "source_method": str(run.attrs.get("method", "")),
+        "source": ", ".join(str(n) for n, _ in sources),
+        "source_method": ", ".join(str(r.attrs.get("method", "")) for _, r in sources),
         "seed": int(seed),
         "train_fraction": float(train_fraction),
         "split_method": split,
-        "range_extreme_gp": gp_ids[np.asarray(always_train, dtype=np.int64)].astype(np.int64),
-        "train_gp": gp_ids[train_idx].astype(np.int64),
-        "heldout_gp": gp_ids[heldout_idx].astype(np.int64),
-        "scaling": "min–max to (0, 1) fitted on the training Gauss points: x_scaled = (x - min) / (max - min)",
+        "history_tolerance": float(history_tolerance),
+        "trajectory_classes": int(n_classes),
+        "range_extreme_gp": gp_ids[np.asarray(extremes, dtype=np.int64)].astype(np.int64),
+        "train_gp": mesh_points(train_idx),
+        "heldout_gp": mesh_points(heldout_idx),
+        "scaling": "min–max to (0, 1) fitted on the training samples: x_scaled = (x - min) / (max - min)",
         "history_definition": "Δε_acc = Σ_k |ε(k) − ε(k−1)|; φ1 = Frobenius norm (off-diagonals twice), φ2 = trace, φ3 = product of the six components",
     }
-    if "config" in run.attrs:
-        attrs["source_config"] = run.attrs["config"]
+    if "config" in first.attrs:
+        attrs["source_config"] = first.attrs["config"]
     train = base.isel(gp=train_idx).assign_attrs(attrs, split="train")
     heldout = base.isel(gp=heldout_idx).assign_attrs(attrs, split="heldout")
     return train, heldout
@@ -223,22 +366,28 @@ def read_dataset(path: str | Path) -> xr.Dataset:
     return ds
 
 
+def sample_mask(ds: xr.Dataset) -> np.ndarray:
+    """[step·gp] which (step, trajectory) entries are samples (``valid``; all in an older file)."""
+    return _valid_of(ds).reshape(-1)
+
+
 def features(ds: xr.Dataset, history=True) -> np.ndarray:
-    """[step·gp, 6 + n_history] raw feature matrix, samples ordered step-major (see history_selection)."""
+    """[samples, 6 + n_history] raw feature matrix, samples ordered step-major, the valid ones only
+    (see history_selection, sample_mask)."""
     parts = [ds["strain"].transpose("step", "gp", "comp").values]
     chosen = history_selection(history)
     if chosen:
         parts.append(ds["history"].sel(hist=list(chosen)).transpose("step", "gp", "hist").values)
     x = np.concatenate(parts, axis=-1)
-    return x.reshape(-1, x.shape[-1])
+    return x.reshape(-1, x.shape[-1])[sample_mask(ds)]
 
 
 def targets(ds: xr.Dataset, kind: str) -> np.ndarray:
-    """[step·gp, 6] stresses or [step·gp, 21] tangent entries, samples ordered as :func:`features`."""
+    """[samples, 6] stresses or [samples, 21] tangent entries, samples as :func:`features`."""
     target_names(kind)
     var, last = ("stress", "comp") if kind == "sigma" else ("tangent", "tcomp")
     y = ds[var].transpose("step", "gp", last).values
-    return y.reshape(-1, y.shape[-1])
+    return y.reshape(-1, y.shape[-1])[sample_mask(ds)]
 
 
 def scaling(ds: xr.Dataset, kind: str, history=True) -> dict[str, np.ndarray]:
@@ -260,14 +409,23 @@ def split_of(ds: xr.Dataset) -> dict[str, np.ndarray]:
 
 
 def summary(train: xr.Dataset, heldout: xr.Dataset) -> str:
+    per_source = {}
+    for side, ds in (("train", train), ("heldout", heldout)):
+        for name in np.unique(ds["source"].values) if "source" in ds.coords else ["(one run)"]:
+            sel = ds.isel(gp=ds["source"].values == name) if "source" in ds.coords else ds
+            entry = per_source.setdefault(str(name), {})
+            entry[f"{side}_trajectories"] = int(sel.sizes["gp"])
+            entry[f"{side}_classes"] = int(np.unique(sel["trajectory_class"].values).size) if "trajectory_class" in sel.coords else None
+            entry[f"{side}_samples"] = int(sample_mask(sel).sum())
     return json.dumps(
         {
-            "train_gp": int(train.sizes["gp"]),
-            "heldout_gp": int(heldout.sizes["gp"]),
+            "train_trajectories": int(train.sizes["gp"]),
+            "heldout_trajectories": int(heldout.sizes["gp"]),
             "split_method": str(train.attrs.get("split_method", "random")),
-            "range_extreme_gp": int(len(np.atleast_1d(train.attrs.get("range_extreme_gp", [])))),
+            "history_tolerance": float(train.attrs.get("history_tolerance", 0.0)),
             "steps": int(train.sizes["step"]),
-            "train_samples": int(train.sizes["gp"] * train.sizes["step"]),
-            "heldout_samples": int(heldout.sizes["gp"] * heldout.sizes["step"]),
+            "train_samples": int(sample_mask(train).sum()),
+            "heldout_samples": int(sample_mask(heldout).sum()),
+            "sources": per_source,
         }
     )

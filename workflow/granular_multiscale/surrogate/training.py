@@ -27,7 +27,7 @@ from torch.func import jvp
 from ..atomic import atomic_path
 from ..history import accumulated_from_sequence
 from ..tensors import ENGINEERING_FACTOR, tangent_from_upper
-from .dataset import features, history_selection, scaling, target_names, targets
+from .dataset import features, history_selection, sample_mask, scaling, target_names, targets
 from .models import EnsembleMLP, ScaledMLP, SurrogateModel, trial_features
 
 _KIND_INDEX = {"sigma": 0, "tangent": 1}
@@ -73,7 +73,8 @@ def _jacobian_data(ds: xr.Dataset, net, device) -> dict[str, torch.Tensor]:
     jac_scaled = jac * x_scale[None, None, None, :] / y_scale[None, None, :, None]
     # directions only along strains that vary in the data (a roundoff-constant column has scale 1)
     varies = (net.x_max[:6] - net.x_min[:6] > 0) & (net.x_scale[:6] != 1.0)
-    flat = lambda a: torch.as_tensor(a.reshape(-1, *a.shape[2:]), dtype=torch.float32, device=device)  # noqa: E731
+    keep = sample_mask(ds)  # padding and lost-contact entries are no samples
+    flat = lambda a: torch.as_tensor(a.reshape(-1, *a.shape[2:])[keep], dtype=torch.float32, device=device)  # noqa: E731
     return {"strain": flat(strain), "strain_c": flat(strain_c), "acc_c": flat(acc_c), "target": flat(jac_scaled),
             "mask": varies.to(device=device, dtype=torch.float32), "x_scale": net.x_scale[:6].detach()}
 
