@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from snakemake.utils import update_config
@@ -24,10 +25,12 @@ def read(name):
     return yaml.safe_load((ROOT / "config" / name).read_text())
 
 
-def as_snakemake_loads(name):
-    """config/config.yaml with the scale file merged over it, as Snakemake does (update_config)."""
+def as_snakemake_loads(*names):
+    """config/config.yaml with the given files merged over it in order, as Snakemake does
+    (update_config) with the Snakefile's configfile and several --configfile files."""
     config = copy.deepcopy(read("config.yaml"))
-    update_config(config, read(name))
+    for name in names:
+        update_config(config, read(name))
     return config
 
 
@@ -83,3 +86,35 @@ def test_the_elastoplastic_scale_runs_no_dem(tmp_path):
     jobs, _ = dry_run(tmp_path, "elastoplastic.yaml")
     assert jobs.count("fem_elastoplastic") == 2
     assert not {"rve", "fem_dem", "rve_spheres", "fem_dem_spheres"} & set(jobs)
+
+
+@pytest.mark.parametrize("scale", ["config.yaml", "tiny.yaml"])
+def test_new_paths_add_path3_and_path4_and_keep_path1_and_path2(scale):
+    """Pass criterion: config/new_paths.yaml merged over a scale (as `--configfile config/<scale>
+    config/new_paths.yaml` does) leaves everything but load_paths as the scale alone has it, keeps
+    path1 and path2 exactly as the schema defaults (their runs are reused), and adds path3 (two
+    unload–reload cycles: peaks 1.5 % and 3 %, valleys 0.8 % and 2 %) and path4 (four cycles to
+    1, 2, 3, 4 %, each unloaded by 0.3 %), both ending at 4.5 %, under 70 steps of about 1e-3,
+    and neither a training path."""
+    from granular_multiscale.paths import load_paths_from_config
+
+    alone = validate_config(as_snakemake_loads(scale))
+    with_new = validate_config(as_snakemake_loads(scale, "new_paths.yaml"))
+    assert differences({k: v for k, v in alone.items() if k != "load_paths"},
+                       {k: v for k, v in with_new.items() if k != "load_paths"}) == []
+    assert list(with_new["load_paths"]) == ["path1", "path2", "path3", "path4"]
+    assert {k: with_new["load_paths"][k] for k in ("path1", "path2")} == alone["load_paths"]
+    assert with_new["surrogate"]["training_sources"] == [] and with_new["training_path"] == "path1"
+
+    paths = load_paths_from_config(with_new)
+    shapes = {}
+    for name in ("path3", "path4"):
+        path = paths[name]
+        strain = path.axial_strain()
+        reversals = path.reversal_steps()
+        turning = strain[np.asarray(reversals) - 1]  # the strain where each reversal starts
+        shapes[name] = (len(reversals), turning[0::2].round(6).tolist(), turning[1::2].round(6).tolist())
+        assert path.n_steps < 70 and strain[-1] == pytest.approx(0.045)
+        assert 0.9e-3 < np.abs(path.increments()).min() <= np.abs(path.increments()).max() < 1.2e-3
+    assert shapes == {"path3": (4, [0.015, 0.03], [0.008, 0.02]),
+                      "path4": (8, [0.01, 0.02, 0.03, 0.04], [0.007, 0.017, 0.027, 0.037])}

@@ -70,10 +70,30 @@ class LoadPath:
                 labels.append("reloading" if unloaded else "loading")
         return np.asarray(labels)
 
+    def phase_cycle(self) -> np.ndarray:
+        """Like :meth:`phase`, with the unload–reload cycle numbered: 'initial', 'loading',
+        'unloading 1', 'reloading 1', 'unloading 2', ... (see :func:`number_cycles`)."""
+        return number_cycles(self.phase())
+
     def reversal_steps(self) -> list[int]:
         """Steps at which the loading direction changes (first step of the new direction)."""
         sign = np.sign(self.increments())
         return [k + 1 for k in range(1, len(sign)) if sign[k] != sign[k - 1] and sign[k] != 0]
+
+
+def number_cycles(phases) -> np.ndarray:
+    """Per-step phase labels of :meth:`LoadPath.phase` (or a run file's ``phase`` variable) with
+    the unload–reload cycle numbered: the k-th run of 'unloading' steps becomes 'unloading k',
+    and the 'reloading' steps after it 'reloading k'; 'initial' and 'loading' stay as they are."""
+    labels, cycle, previous = [], 0, None
+    for phase in map(str, phases):
+        if phase not in ("initial", "loading", "unloading", "reloading"):
+            raise ValueError(f"unknown load phase {phase!r} (expected initial, loading, unloading or reloading)")
+        if phase == "unloading" and previous != "unloading":
+            cycle += 1
+        labels.append(f"{phase} {cycle}" if phase in ("unloading", "reloading") else phase)
+        previous = phase
+    return np.asarray(labels)
 
 
 def load_paths_from_config(config: dict) -> dict[str, LoadPath]:

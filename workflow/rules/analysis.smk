@@ -9,6 +9,8 @@
 # ablation; the speed figure and tables add FEM–DEM at other sphere counts when configured.
 # The surrogate cost table adds what making the surrogate cost (RVE packings, the training
 # path's reference run, dataset, NNσ and ND training) and the break-even number of FEM–ML runs.
+# validation_tables compares FEM–ML and the ablation with the reference on every validation path
+# (VALIDATION_PATHS: each load path the training did not use) and the training paths, per load phase.
 ANALYSIS = config["analysis"]
 VALIDATION = config["validation_path"]
 TANGENT = config["surrogate"]["tangent"]
@@ -315,6 +317,33 @@ rule headline:
         "../../scripts/analysis_table.py"
 
 
+# every validation path (the training did not use it), then the training run paths (in-sample)
+VALIDATION_CASES = {
+    **{p: "validation path" for p in VALIDATION_PATHS},
+    **{p: "training path" for p in TRAINING_RUN_PATHS if p not in VALIDATION_PATHS},
+}
+
+
+rule validation_tables:
+    input:
+        runs=[run for path in VALIDATION_CASES for run in comparison_runs(path).values()],
+    output:
+        csv=report(f"{OUT}/tables/validation_by_phase.csv", caption="../report/validation_by_phase_csv.rst",
+                   category=CAT_SPEED, subcategory="Validation by load phase"),
+        html=report(f"{OUT}/tables/validation_by_phase.html", caption="../report/validation_by_phase.rst",
+                    category=CAT_SPEED, subcategory="Validation by load phase"),
+    log:
+        f"{OUT}/logs/analysis/validation_tables.log",
+    benchmark:
+        f"{OUT}/benchmarks/analysis/validation_tables.tsv"
+    params:
+        cases=list(VALIDATION_CASES.items()),
+        labels=list(comparison_runs(VALIDATION)),  # the same labels for every path
+        reference_label=REFERENCE_LABEL,
+    script:
+        "../../scripts/analysis_validation.py"
+
+
 ANALYSIS_TARGETS = [
     f"{OUT}/figures/error_map.png",
     *[f"{OUT}/figures/stress_strain_{name}.png" for name in stress_strain_names()],
@@ -327,6 +356,7 @@ ANALYSIS_TARGETS = [
     f"{OUT}/tables/surrogate_cost.csv",
     f"{OUT}/figures/speed_vs_error.png",
     f"{OUT}/tables/headline.json",
+    f"{OUT}/tables/validation_by_phase.csv",
 ]
 ALL_TARGETS += ANALYSIS_TARGETS
 

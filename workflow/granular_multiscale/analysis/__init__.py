@@ -10,6 +10,8 @@
 * ``fields``     — the hexahedral mesh as a VTK grid, off-screen pyvista renderings of
   fields on the deformed mesh, and VTU/PVD export for ParaView.
 * ``tables``     — speedup table (paper Table 4 layout), accuracy table, headline numbers.
+* ``validation`` — FEM–ML against the reference per load path, method and load phase
+  (cycles numbered), the validation table of every validation path.
 
 The error metrics themselves live in ``metrics`` (the FEM–ML stage); this package only
 draws and tabulates them.

@@ -571,7 +571,10 @@ def make_validation_table(cases: Sequence[tuple[str, str, Mapping[str, str]]], o
         labels = list(files)
         reference = data.read_run(files[labels[0]])
         runs = {label: data.read_run(files[label]) for label in labels[1:]}
-        parts.append(validation.phase_errors(reference, runs, path=path, role=role))
+        try:
+            parts.append(validation.phase_errors(reference, runs, path=path, role=role))
+        except ValueError as error:  # name the files: the message names the method and the path
+            raise ValueError(f"{error} (run files: {', '.join(f'{k}: {v}' for k, v in files.items())})") from error
     table = pd.concat(parts, ignore_index=True)
     tables.write_csv(table, out_csv)
     tables.write_html_table(
