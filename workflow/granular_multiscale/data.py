@@ -35,6 +35,13 @@ symmetric representation (ND's 21 targets, positive-definiteness checks) should 
 
 Global attrs: ``method`` (what sat at the Gauss points), ``config`` (YAML of the config that
 produced the file), ``sign_convention``.
+
+RVE-path files (``{output_dir}/rve_paths/{set}.h5``, method "rve_paths", no FEM: RVEs driven
+along designed strain histories, ``drivers.rve_paths``) hold one ``gp`` per trajectory and
+:data:`RVE_PATHS_VARIABLES`: strain, stress, tangent (21), history as above, plus
+``family(gp)``, ``valid(step,gp)`` (False from the step an RVE lost its contact network on;
+its stress and tangent are NaN there, never zeros), ``lost_contact_step(gp)`` (−1 = never),
+``particle_steps(step)`` and ``wall_time(step)``.
 """
 
 from __future__ import annotations
@@ -66,6 +73,9 @@ REQUIRED_VARIABLES = (
     "newton_iterations",
     "wall_time",
 )
+#: variables of an RVE-path file (no FEM: no displacement, platen force or Newton records)
+RVE_PATHS_VARIABLES = ("strain", "stress", "tangent", "history", "family", "valid", "lost_contact_step",
+                       "particle_steps", "wall_time")
 
 SIGN_CONVENTION = (
     "stress and strain tension positive; strain tensorial (eps23, not gamma23); "
@@ -78,8 +88,9 @@ class DataFileError(OSError):
     """A run file is missing, unreadable, truncated or lacks a variable; the message names the file."""
 
 
-def write_run(ds: xr.Dataset, path: str | Path, config: dict | None = None) -> Path:
-    """Write a run Dataset atomically (temporary file in the same folder, then rename).
+def write_run(ds: xr.Dataset, path: str | Path, config: dict | None = None, required=REQUIRED_VARIABLES) -> Path:
+    """Write a run Dataset atomically (temporary file in the same folder, then rename); it must
+    hold the ``required`` variables (an RVE-path file: :data:`RVE_PATHS_VARIABLES`).
 
     A failure while writing never leaves a half-written file at ``path``."""
     path = Path(path)
@@ -88,7 +99,7 @@ def write_run(ds: xr.Dataset, path: str | Path, config: dict | None = None) -> P
     if config is not None:
         ds.attrs["config"] = yaml.safe_dump(config, sort_keys=False)
     ds.attrs.setdefault("sign_convention", SIGN_CONVENTION)
-    missing = [v for v in REQUIRED_VARIABLES if v not in ds.variables]
+    missing = [v for v in required if v not in ds.variables]
     if missing:
         raise ValueError(f"refusing to write {path}: the run lacks variables {missing}")
     with atomic_path(path) as tmp:

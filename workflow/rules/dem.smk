@@ -3,6 +3,9 @@
 #   rve      {OUT}/rve/packing_<k>.yade.gz (k = 0..dem.n_packings-1) + {OUT}/rve/summary.json
 #   fem_dem  {OUT}/fem_dem/{path}.h5, checkpoint and RVE snapshots under {OUT}/checkpoints/fem_dem/
 #            (not declared outputs: a rerun after a kill resumes from them)
+#   rve_paths  {OUT}/rve_paths/{name}.h5 for a set of rve_paths.sets: RVEs driven along designed strain
+#            histories (no FEM), checkpoint under {OUT}/checkpoints/rve_paths/; not in `all` by itself
+#            (the dataset asks for it through surrogate.training_sources "rve_paths:<name>")
 
 PACKINGS = [f"{OUT}/rve/packing_{k}.yade.gz" for k in range(config["dem"]["n_packings"])]
 # what defines a packing / a FEM–DEM run, not where it runs: a change of these reruns the rule
@@ -45,6 +48,32 @@ rule fem_dem:
     threads: config["dem"]["n_workers"]
     script:
         "../../scripts/run_fem_dem.py"
+
+
+RVE_PATH_SETS = list(config["rve_paths"]["sets"])
+
+
+rule rve_paths:
+    input:
+        packings=PACKINGS,
+    output:
+        f"{OUT}/rve_paths/{{name}}.h5",
+    log:
+        f"{OUT}/logs/rve_paths/{{name}}.log",
+    benchmark:
+        f"{OUT}/benchmarks/rve_paths/{{name}}.tsv"
+    params:
+        checkpoint=f"{OUT}/checkpoints/rve_paths/{{name}}.ckpt",
+        definition=lambda wildcards: config["rve_paths"]["sets"][wildcards.name],
+        rve_paths={k: v for k, v in config["rve_paths"].items() if k != "sets"},
+        dem=PACKING_DEFINITION,  # the DEM settings without dem.newton: there is no Newton here
+        pressure=config["specimen"]["confining_pressure"],
+        seed=config["seed"],
+    wildcard_constraints:
+        name="|".join(RVE_PATH_SETS),
+    threads: config["dem"]["n_workers"]
+    script:
+        "../../scripts/run_rve_paths.py"
 
 
 # FEM–DEM at other sphere counts per RVE (analysis.fem_dem_sphere_counts): the same two rules

@@ -5,6 +5,7 @@ because ``from yade import *`` rebinds globals; nothing here imports yade at imp
 * ``worker``     RVE host process: resident scenes, fork-based trials and rollback
 * ``executors``  local process pool or Dask actors holding the hosts
 * ``material``   ``DemMaterialPointSet``: the material-point set the FEM solver calls
+* ``strain_paths``  designed strain histories of the rve_paths rule (numpy only, no YADE)
 * ``run``        what the ``rve`` rule script calls (FEM–DEM runs: ``drivers.fem_dem``)
 * ``yade_env``   one-thread YADE start-up shared by all of them
 * ``vtk_order``  YADE and pip's VTK in one process (VTK first; imports neither itself)

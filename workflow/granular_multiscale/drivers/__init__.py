@@ -7,4 +7,5 @@ way round, so the solver never learns what sits at its Gauss points.
     fem_dem    FEM–DEM runs (YADE RVEs at the Gauss points)
     fem_ml     FEM–ML runs (the neural surrogate at the Gauss points)
     reference  the elastoplastic reference runs (the analytic model at the Gauss points)
+    rve_paths  RVEs driven along designed strain histories (the DEM set alone, no FEM)
 """

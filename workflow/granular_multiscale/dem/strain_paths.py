@@ -1,0 +1,355 @@
+"""Designed strain histories for RVEs driven without FEM (rule ``rve_paths``), as data.
+
+A set of trajectories is ``strain[trajectory, step, 6]`` for steps 0..n_steps (Voigt order
+11, 22, 33, 23, 13, 12, tensorial shear, tension positive; step 0 = 0, the consolidated
+state), each with a ``family`` label, generated from the config section ``rve_paths`` and
+seeded by ``seed + sets.<name>.seed_offset`` (every family draws from its own stream, so the
+count of one family does not change the trajectories of the others). Families:
+
+axisymmetric
+    ε33 = s(t), ε11 = ε22 = −ν·s(t), no shear; ν (``nu_min..nu_max``) is drawn per
+    trajectory, ν < 0.5 compacts under compression and ν > 0.5 dilates. The first
+    ``1 − extension_fraction`` of the family's trajectories are compressions (s < 0), the rest
+    extensions. |s| moves by exactly ``increment`` per step: loading to a first peak, then
+    1..3 unload–reload cycles (``cycles_min..cycles_max``) whose peaks (where) and unload
+    depths (how far) are drawn, and a last reloading to the final, largest amplitude.
+random_walk
+    A correlated random walk in the 6-D strain space: the direction of each increment is
+    ``correlation`` × the previous one plus noise, reversed with ``reversal_probability`` per
+    step, scaled so that its largest component is ``increment``; an increment that would leave
+    the bounds is reflected at them (on a trace, eigenvalue or shear bound), or sent back
+    towards the origin when the reflection does not fit either.
+proportional
+    ε(t) = α(t)·n for a random unit direction n of the 6-D strain space: α grows monotonically
+    to a drawn amplitude (``min_amplitude_fraction``..1 of the largest the bounds allow along
+    n) and, with ``return_probability``, comes back part way (up to ``max_return_fraction`` of
+    it). The increments are as large as the amplitude needs in n_steps, at most ``increment``
+    (an amplitude that n_steps such increments do not reach is cut to what they reach).
+
+Bounds (every generated history is checked against them): principal strains
+|ε_i| ≤ ``max_strain``, shear components |ε_ij| ≤ ``max_shear``, volumetric extension
+tr ε ≤ ``max_volumetric_extension`` (so an RVE keeps its contact network) and compaction
+−tr ε ≤ ``max_volumetric_compaction`` (so the stresses stay in the range a specimen sees).
+
+``python -m granular_multiscale.dem.strain_paths [--config FILE] [SET ...]`` prints what a
+set costs in DEM evaluations and particle-steps, without running YADE.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..config import ConfigError, load_config
+from ..tensors import tensor_to_voigt, voigt_to_tensor
+from .worker import steps_for_increment
+
+FAMILIES = ("axisymmetric", "random_walk", "proportional")
+#: absolute slack (strain) of the bound checks: round-off of eigenvalues and sums
+BOUND_SLACK = 1e-12
+MAX_TRIES = 500
+
+
+@dataclass(frozen=True)
+class StrainBounds:
+    max_strain: float
+    max_shear: float
+    max_volumetric_extension: float
+    max_volumetric_compaction: float
+
+    def violation(self, strain: np.ndarray) -> np.ndarray:
+        """[..., 6] -> [...]: by how much a strain exceeds its tightest bound (<= 0: within all)."""
+        strain = np.asarray(strain, dtype=float)
+        principal = np.abs(np.linalg.eigvalsh(voigt_to_tensor(strain))).max(axis=-1) - self.max_strain
+        shear = np.abs(strain[..., 3:]).max(axis=-1) - self.max_shear
+        trace = strain[..., :3].sum(axis=-1)
+        volumetric = np.maximum(trace - self.max_volumetric_extension, -trace - self.max_volumetric_compaction)
+        return np.maximum(np.maximum(principal, shear), volumetric)
+
+    def largest_along(self, direction: np.ndarray) -> float:
+        """Largest t >= 0 with t·direction within the bounds."""
+        n = np.asarray(direction, dtype=float)
+        limits = [self.max_strain / np.abs(np.linalg.eigvalsh(voigt_to_tensor(n))).max()]
+        if np.abs(n[3:]).max() > 0:
+            limits.append(self.max_shear / np.abs(n[3:]).max())
+        if n[:3].sum() > 0:
+            limits.append(self.max_volumetric_extension / n[:3].sum())
+        if n[:3].sum() < 0:
+            limits.append(self.max_volumetric_compaction / -n[:3].sum())
+        return float(min(limits))
+
+
+@dataclass(frozen=True)
+class StrainPaths:
+    """A generated set: strain [trajectory, step, 6], family [trajectory] and, per trajectory,
+    what was drawn for it (``parameters``: ν, sense and reversal steps; direction, amplitude ...)."""
+
+    name: str
+    strain: np.ndarray
+    family: np.ndarray
+    parameters: tuple[dict, ...]
+    increment: float
+    bounds: StrainBounds
+
+    @property
+    def n_trajectories(self) -> int:
+        return self.strain.shape[0]
+
+    @property
+    def n_steps(self) -> int:
+        return self.strain.shape[1] - 1
+
+    def largest_increment(self) -> float:
+        return float(np.abs(np.diff(self.strain, axis=1)).max())
+
+
+# ------------------------------------------------------------------------------ config
+def set_definition(config: dict, name: str) -> dict:
+    """The set ``rve_paths.sets.<name>`` (counts per family, n_steps, seed_offset), checked."""
+    sets = config["rve_paths"]["sets"]
+    if name not in sets:
+        raise ConfigError(f"config key 'rve_paths.sets': no set named {name!r} (defined: {sorted(sets)})")
+    definition = sets[name]
+    if sum(definition[f] for f in FAMILIES) < 1:
+        raise ConfigError(f"config key 'rve_paths.sets.{name}': no trajectories (give a positive count to one of "
+                          f"{', '.join(FAMILIES)})")
+    return definition
+
+
+def check_section(section: dict) -> None:
+    """What the schema cannot say: ranges given by pairs of keys, and an increment that fits the bounds."""
+    for family, low, high in (("axisymmetric", "nu_min", "nu_max"), ("axisymmetric", "cycles_min", "cycles_max")):
+        if section[family][low] > section[family][high]:
+            raise ConfigError(f"config key 'rve_paths.{family}.{low}': {section[family][low]} is larger than "
+                              f"rve_paths.{family}.{high} = {section[family][high]}")
+    increment = section["increment"]
+    # any increment of size `increment` from the origin stays inside (the random walk's last resort)
+    for key, room in (("max_strain", 3 * increment), ("max_volumetric_extension", 3 * increment),
+                      ("max_volumetric_compaction", 3 * increment), ("max_shear", increment)):
+        if section[key] < room:
+            raise ConfigError(f"config key 'rve_paths.increment': {increment} does not fit rve_paths.{key} = "
+                              f"{section[key]} (needs at least {room:g})")
+
+
+def bounds_from_config(config: dict) -> StrainBounds:
+    s = config["rve_paths"]
+    return StrainBounds(s["max_strain"], s["max_shear"], s["max_volumetric_extension"], s["max_volumetric_compaction"])
+
+
+def strain_paths_from_config(config: dict, name: str) -> StrainPaths:
+    """Generate the set ``rve_paths.sets.<name>`` of a validated config."""
+    section = config["rve_paths"]
+    definition = set_definition(config, name)
+    check_section(section)
+    return generate(
+        name, {f: definition[f] for f in FAMILIES}, definition["n_steps"],
+        int(config["seed"]) + definition["seed_offset"], section["increment"], bounds_from_config(config),
+        {f: section[f] for f in FAMILIES},
+    )
+
+
+# ------------------------------------------------------------------------------ generation
+def generate(name: str, counts: dict[str, int], n_steps: int, seed: int, increment: float, bounds: StrainBounds,
+             family_settings: dict[str, dict]) -> StrainPaths:
+    """The trajectories of every family, in the order of :data:`FAMILIES`; checks the bounds."""
+    draw = {"axisymmetric": _axisymmetric, "random_walk": _random_walk, "proportional": _proportional}
+    strains, families, parameters = [], [], []
+    for index, family in enumerate(FAMILIES):
+        rng = np.random.default_rng([seed, index])
+        count = counts.get(family, 0)
+        for k in range(count):
+            strain, info = draw[family](rng, k, count, n_steps, increment, bounds, family_settings[family], name)
+            strains.append(strain)
+            families.append(family)
+            parameters.append(info)
+    strain = np.stack(strains)
+    worst = bounds.violation(strain)
+    if worst.max() > BOUND_SLACK or np.any(strain[:, 0] != 0.0):
+        t, step = np.unravel_index(np.argmax(worst), worst.shape)
+        raise AssertionError(f"RVE-path set {name!r}: trajectory {t} ({families[t]}) leaves its bounds at step {step} "
+                             f"by {worst.max():.3g} (a bug of strain_paths)")
+    return StrainPaths(name, strain, np.array(families), tuple(parameters), increment, bounds)
+
+
+def _axisymmetric(rng, k, count, n_steps, increment, bounds, settings, name):
+    extension = k >= count - round(settings["extension_fraction"] * count)
+    sense = 1.0 if extension else -1.0
+    nu = float(rng.uniform(settings["nu_min"], settings["nu_max"]))
+    # largest |ε33|: principal strains |ε33| and |ν ε33|; tr ε = ε33 (1 − 2ν) within the volumetric bounds
+    largest = bounds.max_strain / max(1.0, abs(nu))
+    dilation = sense * (1.0 - 2.0 * nu)
+    if dilation > 0:
+        largest = min(largest, bounds.max_volumetric_extension / dilation)
+    if dilation < 0:
+        largest = min(largest, bounds.max_volumetric_compaction / -dilation)
+    cap = int(math.floor(largest / increment + 1e-9))  # in increments
+    level = _cycles(rng, n_steps, cap, settings)
+    if level is None:
+        raise ConfigError(
+            f"config key 'rve_paths.sets.{name}.n_steps': {n_steps} axisymmetric increments of {increment:g} with "
+            f"{settings['cycles_min']}..{settings['cycles_max']} unload-reload cycles cannot be laid out (c cycles need "
+            f"at least 2c + 2 steps, and enough unloading to end within |eps33| <= {cap * increment:g}, the rve_paths "
+            f"bounds at nu = {nu:.3f}); change n_steps, rve_paths.axisymmetric.cycles_min/cycles_max or the bounds")
+    level, reversals = level
+    e33 = sense * increment * level
+    strain = np.zeros((n_steps + 1, 6))
+    strain[:, 2] = e33
+    strain[:, 0] = strain[:, 1] = -nu * e33
+    return strain, {"nu": nu, "sense": "extension" if extension else "compression", "reversal_steps": reversals,
+                    "largest_level": int(level.max())}
+
+
+def _cycles(rng, n_steps: int, cap: int, settings: dict):
+    """|ε33| in increments per step 0..n_steps, moving by one per step: up to peak P1, down U1,
+    up to P2 > P1, ..., down Uc, up to the final (largest) level F; F + 2ΣU = n_steps.
+    Returns (levels, reversal steps) or None when no such path fits under ``cap``."""
+    for _ in range(MAX_TRIES):
+        c = int(rng.integers(settings["cycles_min"], settings["cycles_max"] + 1))
+        if c == 0:  # monotonic
+            if n_steps <= cap:
+                return np.arange(n_steps + 1, dtype=float), []
+            continue
+        high = min(cap, n_steps - 2 * c)
+        high -= (high - n_steps) % 2  # F has the parity of n_steps
+        # F large enough that the unloading (n_steps − F)/2 fits below c peaks under F
+        low = max(c + 1, math.ceil(settings["min_amplitude_fraction"] * high),
+                  math.ceil((n_steps + 2 * c) / (2 * c + 1)))
+        low += (low - n_steps) % 2
+        if low > high:
+            continue
+        final = int(rng.choice(np.arange(low, high + 1, 2)))
+        unload_total = (n_steps - final) // 2
+        peaks = np.sort(rng.choice(np.arange(1, final), size=c, replace=False))
+        if peaks.sum() < unload_total:  # the unloading does not fit below these peaks
+            continue
+        depths = 1 + _bounded_composition(rng, unload_total - c, peaks - 1)
+        levels, reversals = [0], []
+        for peak, depth in zip(peaks, depths):
+            levels += range(levels[-1] + 1, peak + 1)
+            reversals.append(len(levels))
+            levels += range(peak - 1, peak - depth - 1, -1)
+            reversals.append(len(levels))
+        levels += range(levels[-1] + 1, final + 1)
+        assert len(levels) == n_steps + 1 and max(levels) == final
+        return np.asarray(levels, dtype=float), reversals
+    return None
+
+
+def _bounded_composition(rng, total: int, caps: np.ndarray) -> np.ndarray:
+    """Random non-negative integers x_i <= caps_i with Σx = total (Σcaps >= total)."""
+    x = np.zeros(len(caps), dtype=int)
+    while x.sum() < total:
+        room = caps - x
+        open_ = np.flatnonzero(room > 0)
+        left = total - x.sum()
+        share = np.floor(rng.dirichlet(np.ones(len(open_))) * left).astype(int)
+        add = np.minimum(share, room[open_])
+        if add.sum() == 0:
+            add[rng.integers(len(open_))] = 1
+        x[open_] += add
+    return x
+
+
+def _random_walk(rng, k, count, n_steps, increment, bounds, settings, name):
+    rho = settings["correlation"]
+    strain = np.zeros((n_steps + 1, 6))
+    direction = rng.standard_normal(6)
+    reversals, reflections, returns = [], 0, 0
+    for step in range(1, n_steps + 1):
+        if step > 1 and rng.random() < settings["reversal_probability"]:
+            direction = -direction
+            reversals.append(step)
+        noise = rng.standard_normal(6) / math.sqrt(6.0)
+        direction = rho * direction / np.linalg.norm(direction) + math.sqrt(1.0 - rho**2) * noise
+        d = increment * direction / np.abs(direction).max()
+        here = strain[step - 1]
+        if bounds.violation(here + d) > 0:
+            reflections += 1
+            d = _reflect(here, d, bounds)
+            d = increment * d / np.abs(d).max()
+            if bounds.violation(here + d) > 0:  # back towards the origin (inside by convexity)
+                returns += 1
+                d = -increment * here / np.abs(here).max()
+            direction = d
+        strain[step] = here + d
+    return strain, {"reversal_steps": reversals, "reflections": reflections, "returns_to_origin": returns}
+
+
+def _reflect(strain: np.ndarray, d: np.ndarray, bounds: StrainBounds) -> np.ndarray:
+    """Mirror the outward part of increment ``d`` at each bound that ``strain + d`` crosses."""
+    d = d.copy()
+    trial = strain + d
+    shear = (np.abs(trial[3:]) > bounds.max_shear) & (d[3:] * trial[3:] > 0)
+    d[3:][shear] *= -1.0
+    values, vectors = np.linalg.eigh(voigt_to_tensor(strain + d))
+    for value, v in zip(values, vectors.T):
+        normal = tensor_to_voigt(np.outer(v, v))  # d(eigenvalue)/d(strain): a unit tensor v⊗v
+        along = float(v @ voigt_to_tensor(d) @ v)
+        if abs(value) > bounds.max_strain and along * value > 0:
+            d -= 2.0 * along * normal
+    trace = (strain + d)[:3].sum()
+    if (trace > bounds.max_volumetric_extension and d[:3].sum() > 0) or \
+            (trace < -bounds.max_volumetric_compaction and d[:3].sum() < 0):
+        d[:3] -= 2.0 * d[:3].sum() / 3.0
+    return d
+
+
+def _proportional(rng, k, count, n_steps, increment, bounds, settings, name):
+    n = rng.standard_normal(6)
+    n /= np.linalg.norm(n)
+    amplitude = rng.uniform(settings["min_amplitude_fraction"], 1.0) * bounds.largest_along(n)
+    back = rng.uniform(0.0, settings["max_return_fraction"]) if rng.random() < settings["return_probability"] else 0.0
+    n_up = min(n_steps, max(math.ceil(n_steps / 2), round(n_steps / (1.0 + back))))
+    n_down = n_steps - n_up
+    h = min(increment / np.abs(n).max(), amplitude / n_up)  # α per step: largest |Δε_ij| <= increment
+    alpha = h * np.concatenate([np.arange(n_up + 1), n_up - np.arange(1, n_down + 1)])
+    return alpha[:, None] * n[None, :], {"direction": n.tolist(), "amplitude": float(h * n_up),
+                                          "return_fraction": n_down / n_up}
+
+
+# ------------------------------------------------------------------------------ cost
+def time_step_estimate(config: dict) -> float:
+    """YADE's time step of a packing: timestep_safety · r_min · sqrt(ρ/E) (utils.PWaveTimeStep) for
+    the smallest sphere the config allows; the real packing's is at least as long."""
+    dem = config["dem"]
+    return dem["timestep_safety"] * 0.5 * dem["diameter_min"] * math.sqrt(dem["density"] / dem["youngs_modulus"])
+
+
+def cost_estimate(config: dict, paths: StrainPaths) -> dict:
+    """RVE evaluations and (an upper bound of) the DEM particle-steps of driving the set: each
+    increment takes the DEM steps of ``worker.steps_for_increment`` plus the one at rest."""
+    dem = config["dem"]
+    dt = time_step_estimate(config)
+    dstrain = np.diff(paths.strain, axis=1)
+    steps = np.array([[steps_for_increment(d, dt, dem["strain_rate"], dem["min_steps"], dem["max_steps"])
+                       for d in trajectory] for trajectory in dstrain])
+    dem_steps = np.where(steps > 0, steps + 1, 0)
+    return {
+        "set": paths.name,
+        "trajectories": {f: int((paths.family == f).sum()) for f in FAMILIES},
+        "n_steps": paths.n_steps,
+        "rve_evaluations": int(dstrain.shape[0] * dstrain.shape[1]),
+        "largest_increment": paths.largest_increment(),
+        "time_step_estimate": dt,
+        "dem_steps_per_evaluation": float(dem_steps.mean()),
+        "particle_steps_estimate": float(dem_steps.sum() * dem["n_spheres"]),
+        "n_spheres": int(dem["n_spheres"]),
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="Cost of the RVE-path sets of a config (no DEM is run).")
+    parser.add_argument("sets", nargs="*", help="set names (default: every set of rve_paths.sets)")
+    parser.add_argument("--config", help="config file (default config/config.yaml)")
+    args = parser.parse_args(argv)
+    config = load_config(args.config)
+    for name in args.sets or list(config["rve_paths"]["sets"]):
+        print(json.dumps(cost_estimate(config, strain_paths_from_config(config, name)), indent=1))
+
+
+if __name__ == "__main__":
+    main()
