@@ -19,7 +19,8 @@ def recount_out_of_range(run, model):
     """Per step: Gauss points whose converged features [ε, φ of the model] leave the training
     min–max saved with the model, and the largest excess in training ranges — recomputed from the
     run file's strain and history, by the rule SurrogateMaterial documents: a margin of
-    surrogate.out_of_range_tolerance × the range plus 1e-9 × the features' magnitude (round-off)."""
+    surrogate.out_of_range_tolerance × the range plus 1e-9 × the features' magnitude (round-off),
+    the six strains sharing one range (the largest of their spans)."""
     names = list(model.feature_names)
     lo = model.network.x_min.detach().numpy().astype(float)
     hi = model.network.x_max.detach().numpy().astype(float)
@@ -28,6 +29,7 @@ def recount_out_of_range(run, model):
     x = np.concatenate([strain, history], axis=-1)
     assert x.shape[-1] == len(names) == 6 + len(model.history)
     span = hi - lo
+    span[:6] = span[:6].max()
     magnitude = np.maximum(np.abs(lo), np.abs(hi))
     magnitude[:6] = max(span[:6].max(), magnitude[:6].max())  # one scale for the six strains
     margin = run_config(run)["surrogate"]["out_of_range_tolerance"] * span + 1e-9 * magnitude
@@ -52,13 +54,19 @@ def tiny_chain(tmp_path_factory):
 def test_dataset_and_models(tiny_chain):
     out = tiny_chain
     train, heldout = read_dataset(out / "dataset/train.h5"), read_dataset(out / "dataset/heldout.h5")
-    # held out by trajectory class: on the 1×1×2 mesh with the elastoplastic model the 8 points of an
-    # element are mirror images of each other (same history to round-off), so the 16 points form two
-    # classes of 8 and 75 % of 16 can only be one whole class
-    assert (train.sizes["gp"], heldout.sizes["gp"]) == (8, 8)
-    assert train.attrs["trajectory_classes"] == 2
+    # training sources (config/tiny.yaml): path1's reference run and the 8 RVE paths of the tiny set,
+    # held out by trajectory class. On the 1×1×2 mesh with the elastoplastic model the 16 points form
+    # two classes of 8 mirror images (same history to round-off): 75 % of 16 can only be one whole
+    # class. The 8 RVE paths are 8 classes: 6 train, 2 are held out.
+    def count(ds, source):
+        return int((ds.source.values == source).sum())
+    run, paths = str(out / "fem_elastoplastic/path1.h5"), str(out / "rve_paths/designed.h5")
+    assert [count(train, run), count(heldout, run), count(train, paths), count(heldout, paths)] == [8, 8, 6, 2]
+    assert train.attrs["trajectory_classes"] == 2 + 8
     assert not set(train.trajectory_class.values) & set(heldout.trajectory_class.values)
-    assert set(split_of(train)["train"]) == set(train.gp.values)
+    # the mesh Gauss points on each side, for the error maps of validation runs on the same mesh
+    assert set(split_of(train)["train"]) == set(train.source_gp.values[train.source.values == run])
+    assert set(split_of(train)["heldout"]) == set(heldout.source_gp.values[heldout.source.values == run])
     assert not set(train.gp.values) & set(heldout.gp.values)
     sigma = SurrogateModel.load(out / "models/nn_sigma.pt")
     assert sigma.kind == "sigma" and sigma.history == ("phi1", "phi2")  # config/tiny.yaml
@@ -98,10 +106,15 @@ def test_fem_ml_runs_and_metrics(tiny_chain):
         np.testing.assert_array_equal(run.out_of_range_points.values, points, err_msg=run.attrs["method"])
         np.testing.assert_allclose(run.out_of_range_excess.values, largest, rtol=1e-9, atol=0)
         assert points[0] == 0  # the consolidated state is the training data's own
-        # measured (issue 13): all 16 points out at every later step through strain_12 — the reference keeps
-        # eps12 = 0 to round-off on this symmetric mesh (training range ±4e-18), FEM–ML reaches 3–5e-5 — and
-        # the other features only at the last step or so (eps33 past the reference's 4.5 %)
-        assert (points[1:] > 0).all()
+        # Only points near the end of the path are out, where the local strains pass the 4.5 % of the
+        # training data, by a little (measured at tolerance 0: 8 of 16 points at the last step only, by at
+        # most 1.4 % of the strains' range). Before, with Path1 alone training, eps12 was 0 to round-off in
+        # all training data (range ±4e-18) and each strain was measured by its own span: the FEM–ML field's
+        # eps12 of 3-5e-5 put all 16 points out at every step, by 1e10-1e12 "ranges" (issue 12; the unit
+        # test in test_surrogate_uncertainty.py keeps that case)
+        axial = run.axial_strain.values
+        assert (points[axial < 0.9 * axial.max()] == 0).all(), points
+        assert excess[..., :6].max() < 0.05
     # the tangent the solver used, whole: autodiff (NNσ's exact Jacobian, not symmetric) in tangent_full;
     # symmetric tangents (the reference's, ND's) keep the 21-entry layout
     assert ml.attrs["method"] == "fem_ml_autodiff" and ml.attrs["tangent_symmetric"] == 0 and "tangent_full" in ml
@@ -118,12 +131,14 @@ def test_fem_ml_runs_and_metrics(tiny_chain):
     err = np.abs(ml.top_force.values - reference.top_force.values)
     assert force.loc[("fem_ml", "path2"), "max_abs_error"] == pytest.approx(err.max())
     # even 16 Gauss points and seconds of training follow the reference within a few % of its peak force.
-    # Measured (issue 13; deterministic, the same in repeated runs of this chain): largest top-force error
-    # 3.33 % (fem_ml, path1, the training path), 3.38 % (fem_ml, path2), 3.22 / 3.07 % (fem_ml_nohist);
-    # the bound, about twice that, catches a real regression (before, 25 % let almost anything pass)
+    # Measured (deterministic, the same in repeated runs of this chain), training on one of path1's two
+    # histories and 6 RVE paths: largest top-force error 6.06 % (fem_ml, path1), 6.43 % (fem_ml, path2),
+    # 3.38 / 2.74 % (fem_ml_nohist). (Issue 13, when the "held-out" points were mirror images of training
+    # points and both histories trained: 3.33 / 3.38 / 3.22 / 3.07 %.) Either way, 25 % would let
+    # almost anything pass; the bound catches a real regression
     for run in ("fem_ml", "fem_ml_nohist"):
         for path in ("path1", "path2"):
-            assert force.loc[(run, path), "max_error_percent_of_peak"] < 7.0, (run, path)
+            assert force.loc[(run, path), "max_error_percent_of_peak"] < 8.0, (run, path)
     newton = pd.read_csv(out / "tables/fem_ml_newton_iterations.csv")
     assert {"iterations_nn", "iterations_autodiff", "iterations_reference"} <= set(newton.columns)
     assert len(newton) == reference.sizes["step"]

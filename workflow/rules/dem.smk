@@ -55,7 +55,8 @@ RVE_PATH_SETS = list(config["rve_paths"]["sets"])
 
 rule rve_paths:
     input:
-        packings=PACKINGS,
+        # the material points are YADE RVEs, or the elastoplastic model with reference_material: elastoplastic
+        packings=PACKINGS if config["reference_material"] == "dem" else [],
     output:
         f"{OUT}/rve_paths/{{name}}.h5",
     log:
@@ -69,6 +70,8 @@ rule rve_paths:
         dem=PACKING_DEFINITION,  # the DEM settings without dem.newton: there is no Newton here
         pressure=config["specimen"]["confining_pressure"],
         seed=config["seed"],
+        material=config["reference_material"],
+        elastoplastic=config["elastoplastic"] if config["reference_material"] == "elastoplastic" else None,
     wildcard_constraints:
         name="|".join(RVE_PATH_SETS),
     threads: config["dem"]["n_workers"]

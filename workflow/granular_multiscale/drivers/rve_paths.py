@@ -1,9 +1,11 @@
-"""RVE paths: DEM RVEs driven along designed strain histories, with no FEM and no Newton.
+"""RVE paths: material points driven along designed strain histories, with no FEM and no Newton.
 
     run_rve_paths(config, set_name, packing_paths, output, checkpoint, n_workers, logger)
 
-One trajectory of ``dem.strain_paths`` per RVE of a :class:`DemMaterialPointSet`; at every step
-one ``evaluate`` (the designed strain) and one ``commit``. The file follows the data contract
+One trajectory of ``dem.strain_paths`` per material point; at every step one ``evaluate`` (the
+designed strain) and one ``commit``. The points are those of the reference material
+(``reference_material``): YADE RVEs of a :class:`DemMaterialPointSet`, or the analytic
+elastoplastic model (the fast stand-in of the tests and ``config/elastoplastic.yaml``). The file follows the data contract
 with one ``gp`` per trajectory (``data.RVE_PATHS_VARIABLES``).
 
 Contact loss (``rve_paths.contact_loss``): an RVE whose mean stress p = −tr σ/3 falls below
@@ -32,6 +34,7 @@ import xarray as xr
 from ..data import RVE_PATHS_VARIABLES, write_run
 from ..dem.material import DemMaterialPointSet
 from ..dem.strain_paths import StrainPaths, set_definition, strain_paths_from_config
+from ..materials import make_material
 from ..fem.triaxial import _load_checkpoint, _save_checkpoint  # the atomic pickle every run's checkpoint uses
 from ..history import HIST, history_from_sequence
 from ..tensors import COMP, TCOMP, tangent_to_upper
@@ -54,7 +57,7 @@ def contact_lost(stress: np.ndarray, tangent: np.ndarray, pressure: float,
     return low_p | not_pd, reasons
 
 
-def _signature(config: dict, set_name: str, paths: StrainPaths, material: DemMaterialPointSet) -> dict:
+def _signature(config: dict, set_name: str, paths: StrainPaths, material) -> dict:
     section = {k: v for k, v in config["rve_paths"].items() if k != "sets"}
     return {
         "format": CHECKPOINT_FORMAT,
@@ -88,11 +91,16 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
                 "increment %.3g, %s executor with %d workers", set_name, n_traj, counts, n_steps, n_traj * n_steps,
                 config["dem"]["n_spheres"], paths.largest_increment(), config["dem"]["executor"], n_workers)
     t0 = time.perf_counter()
-    with DemMaterialPointSet.from_config(config, n_traj, packing_paths, n_workers=n_workers, snapshot_dir=scenes_dir,
-                                         logger=logger, dask_client=dask_client) as material:
+    if config["reference_material"] == "dem":
+        material = DemMaterialPointSet.from_config(config, n_traj, packing_paths, n_workers=n_workers,
+                                                   snapshot_dir=scenes_dir, logger=logger, dask_client=dask_client)
+    else:
+        material = make_material(config["reference_material"], n_traj, config)
+    with material:
         startup = time.perf_counter() - t0
         signature = _signature(config, set_name, paths, material)
-        records = {"stress": [material.conv_stress.copy()], "tangent": [material.conv_tangent.copy()],
+        stress0, tangent0 = _initial_response(material)
+        records = {"stress": [stress0], "tangent": [tangent0],
                    "particle_steps": [0.0], "dem_time": [0.0], "dem_cpu_time": [0.0], "wall_time": [0.0]}
         lost = np.full(n_traj, -1)
         first, elapsed_before = 1, 0.0
@@ -124,8 +132,9 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
             material.commit()
             info = material.step_info()
             wall = time.perf_counter() - t_step
-            for key, value in (("stress", stress), ("tangent", tangent), ("particle_steps", info["particle_steps"]),
-                               ("dem_time", info["dem_time"]), ("dem_cpu_time", info["dem_cpu_time"]),
+            for key, value in (("stress", stress), ("tangent", tangent),
+                               ("particle_steps", info.get("particle_steps", 0.0)),  # 0 for an analytic model
+                               ("dem_time", info.get("dem_time", 0.0)), ("dem_cpu_time", info.get("dem_cpu_time", 0.0)),
                                ("wall_time", wall)):
                 records[key].append(value)
             _report_contact_loss(stress, tangent, step, lost, paths, pressure, criterion, logger)
@@ -135,7 +144,7 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
                                               "material_state": material.get_state(), "elapsed": elapsed})
             logger.info("step %3d/%d  %.3g particle-steps  %.2f s  (%.0f s so far, about %.0f s to go)  "
                         "lost contact: %d",
-                        step, n_steps, info["particle_steps"], wall, elapsed, elapsed / step * (n_steps - step),
+                        step, n_steps, info.get("particle_steps", 0.0), wall, elapsed, elapsed / step * (n_steps - step),
                         int((lost >= 0).sum()))
         wall_total = elapsed_before + time.perf_counter() - t_run
     ds = _dataset(paths, records, lost, config)
@@ -153,6 +162,15 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
         shutil.rmtree(scenes_dir)
     logger.info("wrote %s", output)
     return ds
+
+
+def _initial_response(material) -> tuple[np.ndarray, np.ndarray]:
+    """Stress and tangent of the consolidated state: the DEM set holds them from loading its
+    packings; an analytic set answers a trial at zero strain (repeatable, nothing committed)."""
+    if hasattr(material, "conv_stress"):
+        return material.conv_stress.copy(), material.conv_tangent.copy()
+    stress, tangent = material.evaluate(np.zeros((material.n_points, 6)))
+    return stress, tangent
 
 
 def _report_contact_loss(stress, tangent, step, lost, paths, pressure, criterion, logger) -> None:
