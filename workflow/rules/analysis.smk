@@ -69,6 +69,7 @@ CAT_GP = "1 Gauss points"
 CAT_SPECIMEN = "2 Specimen"
 CAT_SPEED = "3 Speed and accuracy"
 CAT_TRAINING = "4 Training"
+CAT_UNCERTAINTY = "6 Uncertainty"
 
 
 rule figure_error_map:
@@ -344,6 +345,31 @@ rule validation_tables:
         "../../scripts/analysis_validation.py"
 
 
+# the ensemble spread FEM–ML reports (surrogate.ensemble_size) against its realised error
+rule figure_calibration:
+    input:
+        reference=reference_run(VALIDATION),
+        surrogate=f"{OUT}/fem_ml/{VALIDATION}.h5",
+    output:
+        figure=report(f"{OUT}/figures/calibration.png", caption="../report/calibration.rst",
+                      category=CAT_UNCERTAINTY, subcategory="Calibration of the ensemble spread"),
+        csv=report(f"{OUT}/tables/calibration.csv", caption="../report/calibration_csv.rst",
+                   category=CAT_UNCERTAINTY, subcategory="Calibration of the ensemble spread"),
+        html=report(f"{OUT}/tables/calibration.html", caption="../report/calibration_table.rst",
+                    category=CAT_UNCERTAINTY, subcategory="Calibration of the ensemble spread"),
+    log:
+        f"{OUT}/logs/analysis/figure_calibration.log",
+    benchmark:
+        f"{OUT}/benchmarks/analysis/figure_calibration.tsv"
+    params:
+        settings=ANALYSIS,
+        path_label=path_label(VALIDATION),
+        reference_label=REFERENCE_LABEL,
+        surrogate_label=SURROGATE_LABEL,
+    script:
+        "../../scripts/analysis_calibration.py"
+
+
 ANALYSIS_TARGETS = [
     f"{OUT}/figures/error_map.png",
     *[f"{OUT}/figures/stress_strain_{name}.png" for name in stress_strain_names()],
@@ -359,6 +385,7 @@ ANALYSIS_TARGETS = [
     f"{OUT}/tables/validation_by_phase.csv",
 ]
 ALL_TARGETS += ANALYSIS_TARGETS
+ALL_TARGETS += [f"{OUT}/figures/calibration.png", f"{OUT}/tables/calibration.csv", f"{OUT}/tables/calibration.html"]
 
 
 # The report's front page (workflow/report/workflow.rst) states the headline numbers. Its

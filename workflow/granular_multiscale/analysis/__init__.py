@@ -12,6 +12,8 @@
 * ``tables``     — speedup table (paper Table 4 layout), accuracy table, headline numbers.
 * ``validation`` — FEM–ML against the reference per load path, method and load phase
   (cycles numbered), the validation table of every validation path.
+* ``calibration`` — the ensemble spread FEM–ML reports against its realised error (per spread
+  decile, per step; figure and table).
 
 The error metrics themselves live in ``metrics`` (the FEM–ML stage); this package only
 draws and tabulates them.

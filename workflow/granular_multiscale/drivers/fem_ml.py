@@ -4,6 +4,14 @@ The run file is that of any other run (data contract, ``granular_multiscale.data
 ``method`` attribute says which networks and tangent sat at the Gauss points
 (``fem_ml_nn``, ``fem_ml_autodiff``, ``fem_ml_nohist_nn``...), and the per-step variables
 ``out_of_range_points``/``out_of_range_excess`` count inputs outside the training range.
+
+The ensemble's uncertainty (``surrogate.ensemble_size`` K networks per model) is added after the
+solver returns, from what the material set recorded at each commit (:func:`spread_variables`):
+``stress_spread(step, gp, comp)``, the std over the K members of NNσ at the converged strain
+(Pa), and ``stress_spread_relative(step, gp)`` = ‖stress_spread‖ / max(‖stress‖, √3·p0), the
+floor being the norm of the consolidated stress −p0·1. Attribute ``ensemble_size``; with K = 1
+both variables are 0. Under ``specimen.uniform_field`` the material set has one point (the
+problem's ``n_material_points``), whose spread stands for every Gauss point.
 """
 
 from __future__ import annotations
@@ -12,13 +20,14 @@ import copy
 import logging
 from pathlib import Path
 
+import numpy as np
 import torch
 import xarray as xr
 
 from ..fem.newton import ConvergenceError
 from ..fem.triaxial import TriaxialProblem
 from ..paths import load_paths_from_config
-from ..surrogate.material import SurrogateMaterial
+from ..surrogate.material import SurrogateMaterial, relative_spread, spread_floor
 
 
 def fem_ml_config(config: dict) -> dict:
@@ -52,7 +61,7 @@ def run_fem_ml(
     torch.set_num_threads(int(config["surrogate"]["torch_threads"]))
     problem = TriaxialProblem.from_config(config)
     material = SurrogateMaterial.from_files(
-        problem.n_gauss_points,
+        problem.n_material_points,
         sigma_model,
         tangent_model,
         tangent=tangent,
@@ -61,9 +70,10 @@ def run_fem_ml(
         anchor_initial_state=bool(config["surrogate"]["anchor_initial_state"]),
     )
     logger.info(
-        "FEM–ML %s: %d Gauss points, %s, tangent %s, NNσ %s%s; Newton tolerance %g, %d iterations",
-        path_name, problem.n_gauss_points, "with history" if material.use_history else "NO history variables",
-        tangent, sigma_model, f", ND {tangent_model}" if tangent == "nn" else "",
+        "FEM–ML %s: %d Gauss points (%d material points), %s, tangent %s, NNσ %s%s (ensemble of %d); "
+        "Newton tolerance %g, %d iterations",
+        path_name, problem.n_gauss_points, material.n_points, "with history" if material.use_history else "NO history variables",
+        tangent, sigma_model, f", ND {tangent_model}" if tangent == "nn" else "", material.ensemble_size,
         config["newton"]["tolerance"], config["newton"]["max_iterations"],
     )
     with material:
@@ -78,6 +88,8 @@ def run_fem_ml(
             ds.attrs["completed"] = 0
             logger.error("FEM–ML %s with the %s tangent stopped: %s; keeping the converged steps 0..%d "
                          "(attribute completed = 0)", path_name, tangent, error, ds.sizes["step"] - 1)
+    ds = ds.assign(spread_variables(material, ds))
+    ds.attrs["ensemble_size"] = material.ensemble_size
     ds.attrs.update(
         {
             "surrogate_tangent": tangent,
@@ -94,3 +106,36 @@ def run_fem_ml(
         logger.warning("FEM–ML %s: inputs outside the training range at %d steps (at most %d Gauss points)",
                        path_name, steps, n_out)
     return ds
+
+
+def spread_variables(material: SurrogateMaterial, ds: xr.Dataset) -> dict[str, xr.Variable]:
+    """The ensemble spread the material set recorded, one entry per load step of the run `ds`.
+
+    The set records one spread per commit, and the solver commits once per accepted (sub-)step:
+    1 + ``cutbacks`` times per load step, so load step s ended with commit
+    cumsum(1 + cutbacks)[s]. A run that stopped early may have committed sub-steps of the step
+    that failed after its last recorded step; they are left out."""
+    ends = np.cumsum(ds["cutbacks"].values + 1)
+    recorded = material.stress_spread
+    complete = int(ds.attrs.get("completed", 1)) == 1
+    if recorded.shape[0] < ends[-1] or (complete and recorded.shape[0] != ends[-1]):
+        raise RuntimeError(f"the material set recorded {recorded.shape[0]} committed states, the run's "
+                           f"{ds.sizes['step']} load steps and {int(ds['cutbacks'].sum())} cutbacks make {ends[-1]}")
+    spread = recorded[ends - 1]
+    n_gp = ds.sizes["gp"]
+    if spread.shape[1] != n_gp:  # uniform field: the one material point stands for every Gauss point
+        spread = np.broadcast_to(spread, (spread.shape[0], n_gp, 6)).copy()
+    stress = ds["stress"].transpose("step", "gp", "comp").values
+    p0 = float(ds.attrs["confining_pressure_Pa"])
+    k = material.ensemble_size
+    members = f"{k} ensemble members of NNσ" + (" (one network: no spread, 0)" if k == 1 else "")
+    return {
+        "stress_spread": xr.Variable(("step", "gp", "comp"), spread, {
+            "units": "Pa", "ensemble_size": k,
+            "description": f"standard deviation (population, divided by K) over the {members} of each stress "
+                           "component at the converged strain, each member anchored to the fresh state"}),
+        "stress_spread_relative": xr.Variable(("step", "gp"), relative_spread(spread, stress, p0), {
+            "units": "1", "ensemble_size": k, "floor_Pa": spread_floor(p0),
+            "description": "||stress_spread|| / max(||stress||, sqrt(3) * confining pressure), tensor norms; "
+                           "the floor is the norm of the consolidated stress -p0*1"}),
+    }

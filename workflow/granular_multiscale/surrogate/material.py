@@ -29,7 +29,24 @@ origin (often a few kPa) puts the specimen out of balance before any load is app
 
 Inputs outside the training minimum–maximum are not an error (the networks extrapolate)
 but never pass silently: each step's count is logged and returned by :meth:`step_info`
-(``out_of_range_points``), which the solver writes to the run file.
+(``out_of_range_points``), which the solver writes to the run file. A feature counts as out
+of range when it leaves [min − margin, max + margin], margin = ``out_of_range_tolerance`` ×
+its range (+ 1e-9 × its magnitude for round-off), and the excess is measured in that range.
+The six strains share one range, the largest span of the six: they share units, and on a
+symmetric mesh a shear strain can be zero to round-off at every training point (a span of
+1e-17), so that its own span would flag every later roundoff-sized deviation as far out.
+Each φ has its own range.
+
+Ensemble spread (``surrogate.ensemble_size`` K): each evaluation keeps the K members' NNσ
+(their mean is the stress; no extra pass), and at every commit
+:attr:`SurrogateMaterial.stress_spread` records, per committed state and point, the standard
+deviation over the members of each stress component at the committed strain (Pa; population
+std, divided by K; 0 for K = 1). With ``anchor_initial_state`` each member is anchored by
+its own offset (``SurrogateModel.initial_offset(per_member=True)``), whose mean is the
+ensemble's: the members' mean is the stress the solver gets (to round-off), and the spread
+is that of the anchored networks, 0 at the fresh state where they are exact by construction. :func:`relative_spread` turns it into a scalar per point. The record is part of
+:meth:`SurrogateMaterial.get_state`, so it survives a checkpoint and resume; the FEM–ML driver
+writes it into the run file (``stress_spread``, ``stress_spread_relative``).
 """
 
 from __future__ import annotations
@@ -43,7 +60,7 @@ import torch
 
 from ..history import HIST, accumulate, accumulate_torch, history_jacobian_torch, history_variables_torch
 from ..materials.base import MaterialPointSet
-from ..tensors import ENGINEERING_FACTOR, UPPER
+from ..tensors import ENGINEERING_FACTOR, UPPER, voigt_to_tensor
 from .dataset import STRAIN_FEATURES
 from .models import SurrogateModel, trial_features
 
@@ -56,6 +73,21 @@ for _k, (_i, _j) in enumerate(zip(*UPPER)):
 
 # Roundoff-sized deviations (e.g. a shear strain that is 1e-18 instead of 0) are not "out of range".
 _ROUNDOFF = 1e-9
+
+
+def spread_floor(confining_pressure: float) -> float:
+    """Pa: the smallest stress norm :func:`relative_spread` divides by, ‖−p0·1‖ = √3·p0, the norm of
+    the consolidated stress (a spread relative to a stress near zero would mean nothing)."""
+    return float(np.sqrt(3.0) * confining_pressure)
+
+
+def relative_spread(spread: np.ndarray, stress: np.ndarray, confining_pressure: float) -> np.ndarray:
+    """[..., 6] spread and stress (Pa) -> [...]: ‖spread‖ / max(‖stress‖, √3·p0), tensor norms
+    (shear components counted twice)."""
+    def norm(v):
+        return np.linalg.norm(voigt_to_tensor(v), axis=(-2, -1))
+
+    return norm(spread) / np.maximum(norm(stress), spread_floor(confining_pressure))
 
 
 def method_name(tangent: str, use_history: bool = True) -> str:
@@ -107,13 +139,18 @@ class SurrogateMaterial(MaterialPointSet):
         self.anchor_initial_state = bool(anchor_initial_state)
         self._sigma_offset = self._offset(self.sigma_model)
         self._tangent_offset = self._offset(self.tangent_model) if self.tangent_model else None
+        self.ensemble_size = sigma_model.ensemble_size
+        self._member_offsets = (torch.as_tensor(sigma_model.initial_offset(per_member=True), dtype=self.dtype)
+                                if self.anchor_initial_state else torch.zeros(self.ensemble_size, 6, dtype=self.dtype))
 
         self._strain_c = np.zeros((self.n_points, 6))
         self._acc_c = np.zeros((self.n_points, 6))
         self._trial: np.ndarray | None = None
+        self._trial_members: torch.Tensor | None = None
         self._trial_out_of_range: tuple[np.ndarray, np.ndarray] | None = None
         self._step_info = {"out_of_range_points": 0.0, "out_of_range_excess": 0.0}
         self._commits = 0
+        self._spread: list[np.ndarray] = []  # per committed state: [n_points, 6] std over the members (Pa)
 
     @classmethod
     def from_files(
@@ -143,8 +180,9 @@ class SurrogateMaterial(MaterialPointSet):
         hi = net.x_max.detach().numpy().astype(np.float64)
         span = hi - lo
         n_strain = len(STRAIN_FEATURES)
+        span[:n_strain] = span[:n_strain].max()  # the strains' shared range (module docstring)
         scale = np.maximum(np.abs(lo), np.abs(hi))
-        scale[:n_strain] = max(span[:n_strain].max(), scale[:n_strain].max())
+        scale[:n_strain] = max(span[0], scale[:n_strain].max())
         margin = tolerance * span + _ROUNDOFF * scale
         self._lo, self._hi = lo - margin, hi + margin
         self._span = np.where(span > 0, span, 1.0)
@@ -170,11 +208,13 @@ class SurrogateMaterial(MaterialPointSet):
         with torch.no_grad():
             x = self._features(eps, acc_c, eps_c)
             if need_tangent and self.tangent == "autodiff":
-                sigma, jac = self._sigma_net.forward_with_tangents(x, self._feature_jacobian(eps, acc_c, eps_c))
+                sigma, jac, members = self._sigma_net.forward_with_tangents_members(
+                    x, self._feature_jacobian(eps, acc_c, eps_c))
                 sigma = sigma + self._sigma_offset
                 tangent = jac / self._eng  # ∂σ/∂ε (tensorial) -> acts on engineering strain
             else:
-                sigma = self._sigma_net(x) + self._sigma_offset
+                sigma, members = self._sigma_net.forward_members(x)
+                sigma = sigma + self._sigma_offset
                 tangent = None
                 if need_tangent:
                     upper = self._tangent_net(x) + self._tangent_offset
@@ -183,6 +223,7 @@ class SurrogateMaterial(MaterialPointSet):
         tangent_np = tangent.numpy().copy() if tangent is not None else None
         self._check_response(stress, tangent_np, self.method)
         self._trial = strain.copy()
+        self._trial_members = members  # the members' NNσ: the spread, if this trial is committed
         self._trial_out_of_range = self._out_of_range(x.numpy())
         return stress, tangent_np
 
@@ -205,6 +246,7 @@ class SurrogateMaterial(MaterialPointSet):
         self._trial_at(strain, self._trial)
         if self._trial is None:
             raise RuntimeError(f"{type(self).__name__}.commit() called before evaluate()")
+        self._spread.append(self._member_spread(self._trial_members))
         self._acc_c = accumulate(self._acc_c, self._strain_c, self._trial)
         self._strain_c = self._trial
         self._commits += 1
@@ -224,19 +266,37 @@ class SurrogateMaterial(MaterialPointSet):
             )
         self._trial = None
 
+    def _member_spread(self, members: torch.Tensor) -> np.ndarray:
+        """[K, n, 6] members' NNσ -> [n, 6] std over the anchored members (zeros for one network)."""
+        if self.ensemble_size == 1:
+            return np.zeros((self.n_points, 6))
+        return (members + self._member_offsets[:, None, :]).std(dim=0, unbiased=False).numpy().copy()
+
+    @property
+    def stress_spread(self) -> np.ndarray:
+        """[committed states, n_points, 6] the ensemble spread of NNσ at each commit so far (Pa)."""
+        return np.asarray(self._spread, dtype=float).reshape(len(self._spread), self.n_points, 6)
+
     def step_info(self) -> dict[str, float]:
         return dict(self._step_info)
 
     def get_state(self) -> dict[str, Any]:
-        return {"strain": self._strain_c.copy(), "accumulated": self._acc_c.copy(), "commits": self._commits}
+        return {"strain": self._strain_c.copy(), "accumulated": self._acc_c.copy(), "commits": self._commits,
+                "stress_spread": self.stress_spread}
 
     def set_state(self, state: dict[str, Any]) -> None:
         strain = np.asarray(state["strain"], dtype=float)
         acc = np.asarray(state["accumulated"], dtype=float)
         if strain.shape != (self.n_points, 6) or acc.shape != (self.n_points, 6):
             raise ValueError(f"state for {strain.shape[0]} points, this set has {self.n_points}")
+        commits = int(state.get("commits", 0))
+        spread = np.asarray(state.get("stress_spread", np.zeros((0, self.n_points, 6))), dtype=float)
+        if spread.shape != (commits, self.n_points, 6):
+            raise ValueError(f"state of {commits} committed states at {self.n_points} points holds an ensemble-spread "
+                             f"record of shape {spread.shape} (a checkpoint written before the spread was recorded?)")
         self._strain_c, self._acc_c = strain.copy(), acc.copy()
-        self._commits = int(state.get("commits", 0))
+        self._commits = commits
+        self._spread = list(spread)
         self._trial = None
 
     @property

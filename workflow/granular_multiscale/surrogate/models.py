@@ -150,6 +150,16 @@ class ScaledMLP(nn.Module):
         """Features in physical units -> targets in physical units."""
         return self.unscale_y(self.net(self.scale_x(x)))
 
+    def forward_members(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(forward(x), [1, n, n_out] the one member's prediction): the interface of EnsembleMLP."""
+        y = self.forward(x)
+        return y, y[None]
+
+    def forward_with_tangents_members(self, x: torch.Tensor, dx: torch.Tensor):
+        """(*forward_with_tangents(x, dx), [1, n, n_out] the one member's prediction)."""
+        y, t = self.forward_with_tangents(x, dx)
+        return y, t, y[None]
+
     def forward_with_tangents(self, x: torch.Tensor, dx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Targets [n, n_out] and their derivatives [n, n_out, k] along k input tangents dx [n, n_in, k].
 
@@ -203,9 +213,20 @@ class EnsembleMLP(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.unscale_y(self.forward_scaled(self.scale_x(x)))
 
+    def forward_members(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(forward(x), [K, n, n_out] each member's prediction) from one pass of the members."""
+        x_scaled = self.scale_x(x)
+        scaled = torch.stack([m.forward_scaled(x_scaled) for m in self.members])
+        return self.unscale_y(scaled.mean(dim=0)), self.unscale_y(scaled)
+
     def forward_with_tangents(self, x: torch.Tensor, dx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.forward_with_tangents_members(x, dx)[:2]
+
+    def forward_with_tangents_members(self, x: torch.Tensor, dx: torch.Tensor):
+        """(*forward_with_tangents(x, dx), [K, n, n_out] each member's prediction)."""
         values, slopes = zip(*(m.forward_with_tangents(x, dx) for m in self.members))
-        return torch.stack(values).mean(dim=0), torch.stack(slopes).mean(dim=0)
+        values = torch.stack(values)
+        return values.mean(dim=0), torch.stack(slopes).mean(dim=0), values
 
 
 @dataclass
@@ -257,22 +278,33 @@ class SurrogateModel:
     def n_features(self) -> int:
         return len(self.feature_names)
 
-    def initial_offset(self) -> np.ndarray:
+    def initial_offset(self, per_member: bool = False) -> np.ndarray:
         """Targets minus the network's prediction at the fresh state (zero strain, zero history).
 
         Adding it to every prediction makes the model reproduce the initial state exactly (the
         consolidated stress, with which the specimen starts in equilibrium) whatever the fit
-        error there; it is a constant, so it leaves every derivative unchanged."""
+        error there; it is a constant, so it leaves every derivative unchanged.
+
+        per_member: [K, n_targets], each member's own offset. Their mean is the ensemble's
+        offset, so the anchored ensemble is the mean of its anchored members."""
         if not self.initial_state:
             raise ValueError("this model file records no initial state (trained by an older version)")
         x0 = np.asarray(self.initial_state["features"], dtype=float)[None, :]
-        return np.asarray(self.initial_state["targets"], dtype=float) - self.predict(x0)[0]
+        prediction = self.predict_members(x0)[:, 0] if per_member else self.predict(x0)[0]
+        return np.asarray(self.initial_state["targets"], dtype=float) - prediction
 
     def predict(self, x: np.ndarray) -> np.ndarray:
         """[n, n_features] raw features -> [n, n_targets] raw targets (numpy, no gradient)."""
         param = next(self.network.parameters())
         with torch.no_grad():
             y = self.network(torch.as_tensor(np.asarray(x), dtype=param.dtype, device=param.device))
+        return y.cpu().numpy().astype(np.float64)
+
+    def predict_members(self, x: np.ndarray) -> np.ndarray:
+        """[n, n_features] raw features -> [K, n, n_targets]: each member's prediction (K = 1 for one network)."""
+        param = next(self.network.parameters())
+        with torch.no_grad():
+            _, y = self.network.forward_members(torch.as_tensor(np.asarray(x), dtype=param.dtype, device=param.device))
         return y.cpu().numpy().astype(np.float64)
 
     def save(self, path: str | Path) -> None:

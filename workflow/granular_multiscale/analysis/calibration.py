@@ -1,0 +1,255 @@
+"""Calibration of the ensemble spread: does the spread FEM–ML reports say how wrong it is?
+
+For a FEM–ML run (with the ensemble spread of ``drivers.fem_ml``) and the reference run of the
+same load path and mesh, per load step and Gauss point:
+
+* predicted: the spread ‖stress_spread‖ (kPa) and the relative indicator
+  ``stress_spread_relative`` (‖std‖ / max(‖σ‖, √3·p0));
+* realised: the error ‖σ_ML − σ_ref‖ (kPa);
+
+with the tensor norm of ``metrics.stress_norm`` (shear counted twice). Step 0, the
+consolidated state, is left out: the anchored networks reproduce it exactly by construction
+(spread and error both 0 to round-off), so it says nothing about calibration.
+
+A spread is calibrated when the error is about as large (the y = x line of the figure) and
+ranks with it (Spearman ρ near 1). With an ensemble of one network the spread is 0 and carries
+no information: table, figure and title say so and show the error alone.
+
+    points = calibration_points(run, reference)      # one row per (step ≥ 1, Gauss point)
+    calibration_table(points)                        # per spread decile, then the row "all"
+    steps = step_summary(points)                     # per step: median and 90th percentile
+    make_calibration(run_file, reference_file, png, csv, html, settings, ...)   # the rule's products
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+
+from .. import data
+from . import metrics, tables
+from .products import legend_label
+
+N_BINS = 10
+#: phases shaded in the figure's path panel
+SHADED_PHASES = {"unloading": "0.88", "reloading": "0.95"}
+
+
+class CalibrationError(ValueError):
+    """The runs cannot be compared for calibration; the message names the file."""
+
+
+def ensemble_size(run: xr.Dataset) -> int:
+    return int(run.attrs.get("ensemble_size", run["stress_spread"].attrs.get("ensemble_size", 1)))
+
+
+def calibration_points(run: xr.Dataset, reference: xr.Dataset, label: str = "FEM–ML run") -> pd.DataFrame:
+    """One row per (load step ≥ 1, Gauss point): step, gp, phase, spread_kpa, relative_spread, error_kpa."""
+    for name in ("stress_spread", "stress_spread_relative"):
+        if name not in run:
+            raise CalibrationError(f"{label} has no '{name}' (written before FEM–ML recorded the ensemble spread: "
+                                   "run rule fem_ml again)")
+    reference = metrics.common_steps(reference, run, label=label)
+    ref = reference["stress"].transpose("step", "gp", "comp").values
+    val = run["stress"].transpose("step", "gp", "comp").values
+    spread = run["stress_spread"].transpose("step", "gp", "comp").values
+    relative = run["stress_spread_relative"].transpose("step", "gp").values
+    n_steps, n_gp = relative.shape
+    step, gp = np.meshgrid(run["step"].values, run["gp"].values, indexing="ij")
+    phase = np.broadcast_to(tables.phase_labels(run)[:, None], (n_steps, n_gp))
+    points = pd.DataFrame({
+        "step": step.ravel(), "gp": gp.ravel(), "phase": phase.ravel(),
+        "spread_kpa": 1e-3 * metrics.stress_norm(spread).ravel(),
+        "relative_spread": relative.ravel(),
+        "error_kpa": 1e-3 * metrics.stress_norm(val - ref).ravel(),
+    })
+    bad = points[~np.isfinite(points[["spread_kpa", "relative_spread", "error_kpa"]]).all(axis=1)]
+    if len(bad):
+        raise CalibrationError(f"{label}: non-finite spread or error at (step, Gauss point) "
+                               f"{list(zip(bad.step, bad.gp))[:5]}")
+    return points[points.step >= 1].reset_index(drop=True)
+
+
+def spread_deciles(spread: np.ndarray, n_bins: int = N_BINS) -> np.ndarray:
+    """1..n_bins per point: its spread's rank in equal-count bins (ties broken by order, so every
+    bin holds n/n_bins points even when spreads repeat, e.g. a uniform field)."""
+    order = np.argsort(spread, kind="stable")
+    rank = np.empty(len(spread), dtype=int)
+    rank[order] = np.arange(len(spread))
+    return rank * n_bins // max(len(spread), 1) + 1
+
+
+def spearman(x: np.ndarray, y: np.ndarray) -> float:
+    """Spearman rank correlation (average ranks for ties); NaN when either side is constant."""
+    rx, ry = pd.Series(x).rank().to_numpy(), pd.Series(y).rank().to_numpy()
+    if len(x) < 2 or np.ptp(rx) == 0 or np.ptp(ry) == 0:
+        return float("nan")
+    return float(np.corrcoef(rx, ry)[0, 1])
+
+
+def _row(label, pick: pd.DataFrame) -> dict:
+    spread, error = pick.spread_kpa.to_numpy(), pick.error_kpa.to_numpy()
+    positive = spread > 0
+    return {
+        "decile": label,
+        "count": int(len(pick)),
+        "spread_min_kpa": float(spread.min()),
+        "spread_max_kpa": float(spread.max()),
+        "median_spread_kpa": float(np.median(spread)),
+        "median_relative_spread": float(np.median(pick.relative_spread)),
+        "median_error_kpa": float(np.median(error)),
+        "p90_error_kpa": float(np.percentile(error, 90)),
+        "median_error_over_spread": float(np.median(error[positive] / spread[positive])) if positive.any() else np.nan,
+    }
+
+
+def calibration_table(points: pd.DataFrame, n_bins: int = N_BINS) -> pd.DataFrame:
+    """Per spread decile (1 = smallest spreads): count, spread range and median (kPa), median
+    relative spread, median and 90th-percentile error (kPa), median error/spread; then the row
+    "all" with the Spearman rank correlations of the error with ‖std‖ and with the relative
+    spread. Without spread (one network) only the row "all"."""
+    if points.empty:
+        raise CalibrationError("no (step, Gauss point) to calibrate: the run has no load step after step 0")
+    rows = []
+    if (points.spread_kpa > 0).any():
+        deciles = spread_deciles(points.spread_kpa.to_numpy(), n_bins)
+        rows = [_row(str(d), points[deciles == d]) for d in range(1, n_bins + 1) if (deciles == d).any()]
+    everything = _row("all", points)
+    everything["spearman_spread_error"] = spearman(points.spread_kpa.to_numpy(), points.error_kpa.to_numpy())
+    everything["spearman_relative_spread_error"] = spearman(points.relative_spread.to_numpy(),
+                                                            points.error_kpa.to_numpy())
+    return pd.DataFrame([*rows, everything])
+
+
+def step_summary(points: pd.DataFrame) -> pd.DataFrame:
+    """Per load step: phase, and median and 90th percentile over the Gauss points of spread and error (kPa)."""
+    grouped = points.groupby("step", sort=True)
+    return pd.DataFrame({
+        "phase": grouped.phase.first(),
+        "median_spread_kpa": grouped.spread_kpa.median(),
+        "p90_spread_kpa": grouped.spread_kpa.quantile(0.9),
+        "median_error_kpa": grouped.error_kpa.median(),
+        "p90_error_kpa": grouped.error_kpa.quantile(0.9),
+    }).reset_index()
+
+
+def ensemble_note(k: int) -> str:
+    """The figure title's word on the ensemble."""
+    if k == 1:
+        return "ensemble of 1 member: the spread is 0 and carries no information"
+    return f"ensemble of {k} members"
+
+
+# --------------------------------------------------------------------------------------
+# the figure
+
+
+def _shade_phases(ax, steps: np.ndarray, phases: np.ndarray) -> None:
+    """Grey bands over each run of unloading / reloading steps (from the step before: the reversal)."""
+    shown = set()
+    for phase, colour in SHADED_PHASES.items():
+        idx = np.flatnonzero(phases == phase)
+        if not idx.size:
+            continue
+        runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+        for run in runs:
+            ax.axvspan(steps[run[0]] - 1, steps[run[-1]], color=colour, zorder=0,
+                       label=None if phase in shown else phase)
+            shown.add(phase)
+
+
+def calibration_figure(points: pd.DataFrame, table: pd.DataFrame, steps: pd.DataFrame, out: str | Path, *,
+                       k: int, title: str, figsize=(10.0, 4.2), dpi: int = 120) -> Path:
+    """Left: error against spread (kPa, log axes, hexbin of the (step, point) pairs), the y = x line and
+    the median and 90th-percentile error per spread decile. Right: per load step, median and 90th
+    percentile over the Gauss points of spread and error, unloading/reloading shaded."""
+    from . import figures
+
+    plt = figures.plt
+    fig, (ax_c, ax_p) = plt.subplots(1, 2, figsize=figsize)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.13, top=0.84, wspace=0.25)
+    plotted = points[(points.spread_kpa > 0) & (points.error_kpa > 0)]
+    if len(plotted):
+        x, y = plotted.spread_kpa.to_numpy(), plotted.error_kpa.to_numpy()
+        ax_c.hexbin(x, y, xscale="log", yscale="log", gridsize=30, mincnt=1, cmap="Blues", bins="log", linewidths=0.2)
+        lo, hi = min(x.min(), y.min()) / 1.5, max(x.max(), y.max()) * 1.5
+        ax_c.plot([lo, hi], [lo, hi], color="black", linewidth=1.0, label="error = spread")
+        bins = table[table.decile != "all"]
+        ax_c.plot(bins.median_spread_kpa, bins.median_error_kpa, "o-", color="tab:red", markersize=4,
+                  label="median error per spread decile")
+        ax_c.plot(bins.median_spread_kpa, bins.p90_error_kpa, "v--", color="tab:red", markersize=4, alpha=0.7,
+                  label="90th percentile per decile")
+        ax_c.set_xlim(lo, hi)
+        ax_c.set_ylim(lo, hi)
+        left_out = len(points) - len(plotted)
+        note = f"{len(plotted)} (step, point) pairs" + (f"; {left_out} with zero spread or error left out"
+                                                        if left_out else "")
+        ax_c.set_title(f"{note}; Spearman ρ = {float(table.iloc[-1].spearman_spread_error):.2f}", fontsize=8)
+        ax_c.legend(fontsize=7, loc="upper left")
+    else:
+        ax_c.set_xticks([])
+        ax_c.set_yticks([])
+        ax_c.text(0.5, 0.5, "no spread to plot:\none network (surrogate.ensemble_size = 1)" if k == 1 else
+                  "no (step, point) with positive spread and error", ha="center", va="center",
+                  transform=ax_c.transAxes, fontsize=10)
+    ax_c.set_xlabel("predicted spread ‖std of NNσ members‖ (kPa)")
+    ax_c.set_ylabel("realised error ‖σ_ML − σ_ref‖ (kPa)")
+    ax_c.grid(alpha=0.3, which="both")
+
+    step = steps.step.to_numpy()
+    _shade_phases(ax_p, step, steps.phase.to_numpy())
+    ax_p.plot(step, steps.median_error_kpa, color="tab:red", label="error, median")
+    ax_p.plot(step, steps.p90_error_kpa, color="tab:red", linestyle="--", label="error, 90th percentile")
+    if k > 1:
+        ax_p.plot(step, steps.median_spread_kpa, color="tab:blue", label="spread, median")
+        ax_p.plot(step, steps.p90_spread_kpa, color="tab:blue", linestyle="--", label="spread, 90th percentile")
+    ax_p.set_xlabel("load step")
+    ax_p.set_ylabel("kPa, over the Gauss points")
+    ax_p.set_ylim(bottom=0.0)
+    ax_p.grid(alpha=0.3)
+    ax_p.legend(fontsize=7, loc="upper left")
+    fig.suptitle(f"{title}\n{ensemble_note(k)}", fontsize=10)
+    return figures.save_figure(fig, out, dpi)
+
+
+# --------------------------------------------------------------------------------------
+# the rule's products from files
+
+HEADERS = {
+    "decile": "spread decile",
+    "count": "(step, point) pairs",
+    "spread_min_kpa": "spread from (kPa)",
+    "spread_max_kpa": "spread to (kPa)",
+    "median_spread_kpa": "median spread (kPa)",
+    "median_relative_spread": "median relative spread",
+    "median_error_kpa": "median error (kPa)",
+    "p90_error_kpa": "90th pct. error (kPa)",
+    "median_error_over_spread": "median error / spread",
+    "spearman_spread_error": "Spearman ρ (spread, error)",
+    "spearman_relative_spread_error": "Spearman ρ (relative spread, error)",
+}
+
+
+def make_calibration(run_file, reference_file, out_png, out_csv, out_html, settings: Mapping, *,
+                     path_label: str, reference_label: str, surrogate_label: str) -> pd.DataFrame:
+    """Figure, CSV and HTML table of the spread's calibration; returns the table."""
+    run = data.read_run(run_file)
+    reference = data.read_run(reference_file)
+    points = calibration_points(run, reference, label=f"{run_file} (against {reference_file})")
+    k = ensemble_size(run)
+    table = calibration_table(points)
+    title = (f"{path_label}: ensemble spread of {legend_label(surrogate_label, run)} vs its error against "
+             f"{reference_label}")
+    width = float(settings.get("figure_width", 10.0))
+    calibration_figure(points, table, step_summary(points), out_png, k=k, title=title,
+                       figsize=(width, 0.42 * width), dpi=int(settings.get("dpi", 120)))
+    tables.write_csv(table, out_csv)
+    note = (f"{ensemble_note(k)}. Spread: the norm of the standard deviation over the members of each stress "
+            "component at the converged strain; error: the norm of the stress difference from the reference; "
+            f"per (load step >= 1, Gauss point), {len(points)} pairs; deciles of equal count by spread.")
+    tables.write_html_table(table, out_html, title=title, note=note, headers=HEADERS, digits=3)
+    return table
