@@ -30,8 +30,10 @@ FIGURES = [
     "fields_sigma23.png",
     "training_curves.png",
     "speed_vs_error.png",
+    "calibration.png",
 ]
-TABLES = ["speedup.csv", "speedup.html", "accuracy.csv", "accuracy.html", "surrogate_cost.csv", "surrogate_cost.html"]
+TABLES = ["speedup.csv", "speedup.html", "accuracy.csv", "accuracy.html", "surrogate_cost.csv", "surrogate_cost.html",
+          "calibration.csv", "calibration.html", "validation_by_phase.csv", "validation_by_phase.html"]
 
 
 def snakemake(*args, cwd=ROOT):
@@ -101,7 +103,7 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     results = json.loads(re.search(r"var results = (\{.*?\});\n", html).group(1))
     for path, entry in results.items():
         assert "What to look for" in entry["caption"] or Path(path).suffix == ".csv", path
-    for category in ("1 Gauss points", "2 Specimen", "3 Speed and accuracy", "4 Training"):
+    for category in ("1 Gauss points", "2 Specimen", "3 Speed and accuracy", "4 Training", "6 Uncertainty"):
         assert category in html
     # the front page states scale, reference material, machine and the headline numbers
     headline = json.loads((out / "tables" / "headline.json").read_text())
