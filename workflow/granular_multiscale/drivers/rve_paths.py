@@ -33,7 +33,7 @@ import xarray as xr
 
 from ..data import RVE_PATHS_VARIABLES, write_run
 from ..dem.material import DemMaterialPointSet
-from ..dem.strain_paths import StrainPaths, set_definition, strain_paths_from_config
+from ..dem.strain_paths import STRESS_CONTROLLED, StrainPaths, lateral_servo, set_definition, strain_paths_from_config
 from ..materials import make_material
 from ..fem.triaxial import _load_checkpoint, _save_checkpoint  # the atomic pickle every run's checkpoint uses
 from ..history import HIST, history_from_sequence
@@ -100,7 +100,7 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
         startup = time.perf_counter() - t0
         signature = _signature(config, set_name, paths, material)
         stress0, tangent0 = _initial_response(material)
-        records = {"stress": [stress0], "tangent": [tangent0],
+        records = {"strain": [np.zeros((n_traj, 6))], "stress": [stress0], "tangent": [tangent0],
                    "particle_steps": [0.0], "dem_time": [0.0], "dem_cpu_time": [0.0], "wall_time": [0.0]}
         lost = np.full(n_traj, -1)
         first, elapsed_before = 1, 0.0
@@ -126,10 +126,19 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
             _report_contact_loss(records["stress"][0], records["tangent"][0], 0, lost, paths, pressure, criterion,
                                  logger)
         t_run = time.perf_counter()
+        servo = np.isin(paths.family, STRESS_CONTROLLED)
+        lateral_stress = -pressure * np.array([p.get("lateral_stress_fraction", 1.0) for p in paths.parameters])
         for step in range(first, n_steps + 1):
             t_step = time.perf_counter()
-            stress, tangent = material.evaluate(paths.strain[:, step])
+            strain = paths.strain[:, step].copy()
+            if servo.any():  # lateral strains from the last converged response (mixed control)
+                strain[servo] = lateral_servo(
+                    records["strain"][-1][servo], records["stress"][-1][servo], records["tangent"][-1][servo],
+                    paths.strain[servo, step, 2] - paths.strain[servo, step - 1, 2], lateral_stress[servo],
+                    largest=3.0 * paths.increment)
+            stress, tangent = material.evaluate(strain)
             material.commit()
+            records["strain"].append(strain)
             info = material.step_info()
             wall = time.perf_counter() - t_step
             for key, value in (("stress", stress), ("tangent", tangent),
@@ -188,13 +197,15 @@ def _dataset(paths: StrainPaths, records: dict, lost: np.ndarray, config: dict) 
     valid = (lost[None, :] < 0) | (step[:, None] < lost[None, :])
     stress = np.where(valid[..., None], np.asarray(records["stress"]), np.nan)
     tangent = np.where(valid[..., None], tangent_to_upper(np.asarray(records["tangent"])), np.nan)
-    strain = paths.strain.transpose(1, 0, 2)  # [step, trajectory, 6]
+    strain = np.asarray(records["strain"])  # [step, trajectory, 6]: what the RVEs got (servo included)
     totals = {k: float(np.sum(records[k])) for k in ("particle_steps", "dem_time", "dem_cpu_time")}
     per_step = {k: np.asarray(records[k], dtype=float) for k in ("particle_steps", "dem_time", "wall_time")}
     sgc, sgt = ("step", "gp", "comp"), ("step", "gp", "tcomp")
     return xr.Dataset(
         {
-            "strain": (sgc, strain, {"units": "1", "long_name": "designed total strain (tensorial shear)"}),
+            "strain": (sgc, strain, {"units": "1", "long_name": "total strain the RVE got (tensorial shear): the "
+                                                               "designed one, lateral strains of a triaxial "
+                                                               "trajectory from its servo"}),
             "stress": (sgc, stress, {"units": "Pa", "long_name": "RVE stress, tension positive; NaN once lost"}),
             "tangent": (sgt, tangent, {"units": "Pa", "long_name": "upper triangle of the contact-stiffness tangent "
                                                                    "dσ/d(engineering ε); NaN once lost"}),
