@@ -5,7 +5,7 @@ import pytest
 import xarray as xr
 
 from granular_multiscale.config import validate_config
-from granular_multiscale.history import history_from_sequence
+from granular_multiscale.history import HIST, PHI, history_from_sequence
 from granular_multiscale.materials.elastoplastic import Elastoplastic
 from granular_multiscale.paths import load_paths_from_config
 from granular_multiscale.surrogate.dataset import (
@@ -76,6 +76,8 @@ def test_cover_range_split_scales_over_the_whole_specimen(run, seed):
     np.testing.assert_array_equal(train.feature_min.values, everything.min(axis=(0, 1)))
     np.testing.assert_array_equal(train.feature_max.values, everything.max(axis=(0, 1)))
     assert set(train.attrs["range_extreme_gp"]) <= set(train.gp.values) and train.attrs["split_method"] == "cover_range"
+    # the extremes are those of the strains and φ1–φ3 (ψ1, ψ2 left out: the split φ-only configs had)
+    np.testing.assert_array_equal(train.attrs["range_extreme_gp"], run.gp.values[range_extremes(everything[..., :9])])
     assert (train.sizes["gp"], heldout.sizes["gp"]) == (15, 5)
     drawn, _ = build_dataset(run, 0.75, seed=seed)
     assert np.all(drawn.feature_max.values - drawn.feature_min.values <= train.feature_max.values - train.feature_min.values)
@@ -110,7 +112,9 @@ def test_features_and_targets_layout(run):
     gp = int(train.gp.values[3])
     row = 7 * n_gp + 3
     np.testing.assert_array_equal(x[row, :6], run.strain.sel(step=7, gp=gp).values)
-    np.testing.assert_allclose(x[row, 6:], history_from_sequence(run.strain.sel(gp=gp).values)[7])
+    np.testing.assert_allclose(x[row, 6:], history_from_sequence(run.strain.sel(gp=gp).values)[7, :3])  # φ1–φ3
+    with_psi = features(train, history=["psi2", "phi1", "psi1"])  # taken in HIST order: phi1, psi1, psi2
+    np.testing.assert_allclose(with_psi[row, 6:], history_from_sequence(run.strain.sel(gp=gp).values)[7, [0, 3, 4]])
     np.testing.assert_array_equal(targets(train, "tangent")[row], run.tangent.sel(step=7, gp=gp).values)
     assert list(train.feature.values) == list(FEATURES)
     assert len(TANGENT_TARGETS) == 21 and STRAIN_FEATURES[3] == "strain_23"
@@ -212,10 +216,20 @@ def test_sources_of_different_lengths_are_padded_and_masked(run):
     assert np.isnan(padded.stress.values[20:]).all()
     # features/targets hold the valid samples only, and the scaling ignores the padding
     n_valid = int(train.valid.values.sum())
-    assert features(train).shape == (n_valid, len(FEATURES)) and np.isfinite(targets(train, "sigma")).all()
+    assert features(train, history=HIST).shape == (n_valid, len(FEATURES)) and np.isfinite(targets(train, "sigma")).all()
     assert np.isfinite(train.stress_min.values).all()
     # each source is split on its own: both sides hold trajectories of both
     for side in (train, heldout):
         assert set(side.source.values) == {"long", "short"}
     # the mesh Gauss points of the run source on each side, for the error maps of validation runs
     assert set(train.attrs["train_gp"]) == set(train.source_gp.values[train.source.values == "long"])
+
+
+def test_a_dataset_without_psi_names_the_rebuild(run):
+    """A dataset written before ψ1, ψ2 existed holds φ1–φ3 only: selecting ψ must say so, not KeyError."""
+    train, _ = build_dataset(run, 0.75, seed=3)
+    old = train.sel(hist=list(PHI), feature=list(STRAIN_FEATURES + PHI))
+    assert features(old).shape[1] == 9  # the default φ1–φ3 still reads
+    for read in (lambda: features(old, ["phi1", "psi1"]), lambda: scaling(old, "sigma", ["psi2"])):
+        with pytest.raises(DatasetError, match=r"no history variables \['psi.'\].*rebuild"):
+            read()

@@ -273,7 +273,7 @@ def test_rves_follow_the_strain_and_a_killed_run_resumes_bit_for_bit(tmp_path_fa
     ds = read_run(tmp_path / "a.h5", required=("strain", "stress", "tangent"))
     paths = strain_paths_from_config(config, "s")
     assert ds.attrs["method"] == "rve_paths" and ds.attrs["rve_paths_set"] == "s"
-    assert ds.sizes == {"step": 7, "gp": 4, "comp": 6, "tcomp": 21, "hist": 3}
+    assert ds.sizes == {"step": 7, "gp": 4, "comp": 6, "tcomp": 21, "hist": 5}
     assert list(ds.family.values) == ["axisymmetric", "axisymmetric", "random_walk", "proportional"]
     assert np.array_equal(ds.strain.values, paths.strain.transpose(1, 0, 2))
     assert np.array_equal(ds.history.values, history_from_sequence(ds.strain.values))

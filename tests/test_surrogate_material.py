@@ -8,7 +8,9 @@ import pytest
 import torch
 
 from granular_multiscale.config import validate_config
-from granular_multiscale.history import accumulate, history_variables
+import pickle
+
+from granular_multiscale.history import accumulate, history_variables, phi_variables, strain_norms
 from granular_multiscale.materials.base import MaterialPointError
 from granular_multiscale.materials.elastic import LinearElastic
 from granular_multiscale.materials.elastoplastic import Elastoplastic
@@ -80,7 +82,7 @@ def test_stress_is_the_network_at_strain_and_trial_history(models):
     mat = SurrogateMaterial(7, sigma, nd, tangent="nn")
     mat.set_state({"strain": strain_c, "accumulated": acc_c})
     stress, D = mat.evaluate(trial)
-    phi = history_variables(accumulate(acc_c, strain_c, trial))
+    phi = phi_variables(accumulate(acc_c, strain_c, trial))
     x = np.concatenate([trial, phi], axis=1)
     np.testing.assert_allclose(stress, sigma.predict(x) + sigma.initial_offset(), rtol=1e-12)
     # nn tangent: ND's 21 outputs in Pa, reassembled into the symmetric matrix
@@ -137,13 +139,14 @@ def test_history_advances_on_commit_only(models):
     np.testing.assert_array_equal(first, repeat)  # trials do not accumulate
     np.testing.assert_array_equal(mat.history, 0.0)
     mat.commit()  # the last trial (loaded) is converged now
-    np.testing.assert_allclose(mat.history, history_variables(np.abs(loaded)))
+    np.testing.assert_allclose(mat.history, history_variables(np.abs(loaded), strain_norms(loaded)))
     # unload back to zero strain: same strain as the fresh state, different stress (the history differs)
     unloaded, _ = mat.evaluate(np.zeros((3, 6)))
     fresh = SurrogateMaterial(3, sigma, nd).evaluate(np.zeros((3, 6)))[0]
     assert np.abs(unloaded - fresh).max() > 1.0  # Pa
     mat.commit()
-    np.testing.assert_allclose(mat.history, history_variables(2 * np.abs(loaded)))
+    # φ grew by the unloading increment, ψ stayed at the peak (the loaded strain's norms)
+    np.testing.assert_allclose(mat.history, history_variables(2 * np.abs(loaded), strain_norms(loaded)))
     with pytest.raises(RuntimeError, match="before evaluate"):
         mat.commit()
 
@@ -161,7 +164,7 @@ def test_autodiff_tangent_matches_finite_differences(models):
     # the chain rule through φ1–φ3 matters: freezing the history changes the tangent a lot
     frozen = SurrogateMaterial(5, sigma, tangent="autodiff")
     frozen_fd = np.empty_like(fd)
-    phi = history_variables(accumulate(acc_c, strain_c, trial))
+    phi = phi_variables(accumulate(acc_c, strain_c, trial))
     for J in range(6):
         d = np.zeros(6)
         d[J] = 1e-7 / ENGINEERING_FACTOR[J]
@@ -184,7 +187,7 @@ def test_forward_mode_tangent_equals_torch_func_jacobian(data, activation):
     mat = SurrogateMaterial(6, sigma, tangent="autodiff")
     mat.set_state({"strain": strain_c, "accumulated": acc_c})
     stress, D = mat.evaluate(trial)
-    args = [torch.from_numpy(a) for a in (trial, acc_c, strain_c)]
+    args = [torch.from_numpy(a) for a in (trial, acc_c, strain_c, mat.get_state()["peak"])]
     jac, reference = vmap(jacrev(mat._stress_with_aux, has_aux=True))(*args)
     np.testing.assert_allclose(stress, reference.numpy(), rtol=1e-12, atol=1e-9)
     np.testing.assert_allclose(D, jac.numpy() / ENGINEERING_FACTOR, rtol=1e-9, atol=1e-9 * np.abs(D).max())
@@ -301,6 +304,73 @@ def test_state_roundtrip_and_errors(models):
     bad[2, 1] = np.nan
     with pytest.raises(MaterialPointError, match=r"Gauss points \[2\]"):
         a.evaluate(bad)
+
+
+WITH_PSI = ["phi1", "phi2", "psi1"]
+
+
+def test_autodiff_tangent_with_psi_matches_finite_differences(data):
+    """NNσ(ε, φ1, φ2, ψ1): the exact Jacobian includes dψ1/dε where the trial strain passes the
+    converged maximum (loading further) and not where ψ1 is frozen (unloading)."""
+    sigma = untrained(data, "sigma", use_history=WITH_PSI, seed=11)
+    assert sigma.feature_names[6:] == ("phi1", "phi2", "psi1")
+    strain_c, acc_c, _ = state_with_history(5, seed=8)
+    noise = np.random.default_rng(9).normal(scale=1e-4, size=(5, 6))
+    cases = {"active": (strain_norms(strain_c), 1.05 * strain_c + noise),   # ‖ε‖ 5 % past the peak
+             "frozen": (1.3 * strain_norms(strain_c), 0.97 * strain_c + noise)}  # unloading below it
+    tangents = {}
+    for name, (peak_c, trial) in cases.items():
+        mat = SurrogateMaterial(5, sigma, tangent="autodiff")
+        mat.set_state({"strain": strain_c, "accumulated": acc_c, "peak": peak_c})
+        above = strain_norms(trial)[:, 0] > peak_c[:, 0]
+        assert above.all() if name == "active" else not above.any()
+        _, D = mat.evaluate(trial)
+        fd = finite_difference_tangent(mat, trial)
+        np.testing.assert_allclose(D, fd, atol=1e-6 * np.abs(fd).max(), err_msg=name)
+        tangents[name] = D
+    # the chain rule through ψ1 matters: at the same trial strain and (to 1e-12) the same ψ1,
+    # a maximum just above the trial norm freezes ψ1 and changes the tangent
+    peak_c, trial = cases["active"]
+    for frozen in (False, True):
+        mat = SurrogateMaterial(5, sigma, tangent="autodiff")
+        mat.set_state({"strain": strain_c, "accumulated": acc_c,
+                       "peak": strain_norms(trial) * (1 + 1e-12) if frozen else peak_c})
+        tangents[frozen] = mat.evaluate(trial)[1]
+    np.testing.assert_array_equal(tangents[False], tangents["active"])
+    assert np.abs(tangents[True] - tangents[False]).max() > 1e-3 * np.abs(tangents[False]).max()
+
+
+def test_checkpoint_resume_with_psi_is_bit_identical(data):
+    """A load–unload–reload sequence, checkpointed (pickled state) while unloading below the peak:
+    the resumed material gives the same stresses and tangents to the bit; without the running
+    maxima in the state (taken at the current strain) it would not."""
+    sigma = untrained(data, "sigma", use_history=WITH_PSI, seed=12)
+    direction = np.array([0.002, 0.002, -0.006, 0.0003, -0.0001, 0.0002])
+    scales = [0.5, 1.0, 0.6, 0.3, 0.7, 1.2, 1.5]  # load, unload, reload past the peak
+    strains = [np.outer(np.linspace(0.9, 1.1, 3), s * direction) for s in scales]
+    whole = SurrogateMaterial(3, sigma, tangent="autodiff")
+    resumed = None
+    out = {"whole": [], "resumed": []}
+    for k, strain in enumerate(strains):
+        if k == 3:  # checkpoint after committing the first unloading step
+            saved = pickle.loads(pickle.dumps(whole.get_state()))
+            np.testing.assert_allclose(saved["peak"], strain_norms(strains[1]), rtol=1e-15)  # the peak, not the current strain
+            resumed = SurrogateMaterial(3, sigma, tangent="autodiff")
+            resumed.set_state(saved)
+            forgetful = SurrogateMaterial(3, sigma, tangent="autodiff")
+            forgetful.set_state({key: v for key, v in saved.items() if key != "peak"})
+            assert np.abs(forgetful.evaluate(strain)[0] - whole.evaluate(strain)[0]).max() > 1.0  # Pa
+        for name, mat in (("whole", whole), ("resumed", resumed)):
+            if mat is not None:
+                out[name].append(mat.evaluate(strain))
+                mat.commit()
+    for (s_w, D_w), (s_r, D_r) in zip(out["whole"][3:], out["resumed"]):
+        np.testing.assert_array_equal(s_w, s_r)
+        np.testing.assert_array_equal(D_w, D_r)
+    np.testing.assert_array_equal(whole.history, resumed.history)
+    np.testing.assert_allclose(whole.history[:, 3:], strain_norms(strains[-1]), rtol=1e-15)  # the new peak
+    with pytest.raises(ValueError, match="running maximum"):
+        resumed.set_state(dict(saved, peak=0.5 * saved["peak"]))
 
 
 def test_fem_ml_run_file_holds_the_autodiff_tangent_whole(models, tmp_path):

@@ -7,7 +7,7 @@ import torch
 from granular_multiscale.config import CONFIG_DIR, load_config, validate_config
 from granular_multiscale.materials.elastoplastic import Elastoplastic
 from granular_multiscale.paths import load_paths_from_config
-from granular_multiscale.surrogate.dataset import FEATURES, STRAIN_FEATURES, TANGENT_TARGETS, build_dataset, features, targets
+from granular_multiscale.surrogate.dataset import STRAIN_FEATURES, TANGENT_TARGETS, build_dataset, features, targets
 from granular_multiscale.surrogate.models import EnsembleMLP, ModelFileError, SurrogateModel
 from granular_multiscale.surrogate.training import TrainingError, model_seed, plot_losses, train
 
@@ -42,7 +42,7 @@ def test_architecture_follows_config(data):
     linears = [m for m in model.network.net if isinstance(m, torch.nn.Linear)]
     assert [(m.in_features, m.out_features) for m in linears] == [(9, 7), (7, 7), (7, 7), (7, 21)]
     assert sum(isinstance(m, torch.nn.ReLU) for m in model.network.net) == 3
-    assert model.target_names == TANGENT_TARGETS and model.feature_names == FEATURES
+    assert model.target_names == TANGENT_TARGETS and model.feature_names == STRAIN_FEATURES + ("phi1", "phi2", "phi3")
 
 
 def test_training_is_deterministic_and_seeded(data):
@@ -65,6 +65,35 @@ def test_history_variables_are_selectable(data):
     assert train(*data, "sigma", settings, seed=0, use_history=False)[0].feature_names == STRAIN_FEATURES
     with pytest.raises(ValueError, match="surrogate.history_variables"):
         train(*data, "sigma", dict(settings, history_variables=["phi4"]), seed=0)
+
+
+def test_running_maxima_train_and_replay_like_the_dataset(data, tmp_path):
+    """ψ1, ψ2 selected (with the Jacobian loss, which differentiates through them): the saved model
+    takes them, and a SurrogateMaterial replaying a held-out trajectory's strains computes the same
+    features the dataset holds (one definition, history.py), so it predicts what the model predicts."""
+    from granular_multiscale.surrogate.material import SurrogateMaterial
+
+    chosen = ("phi1", "phi2", "psi1", "psi2")
+    settings = dict(FAST, epochs=2, history_variables=list(reversed(chosen)), jacobian_loss_weight=1.0)
+    model, losses, _ = train(*data, "sigma", settings, seed=0)
+    assert model.history == chosen and np.isfinite(losses.train_loss).all()
+    model.save(tmp_path / "s.pt")
+    back = SurrogateModel.load(tmp_path / "s.pt")
+    assert back.feature_names == STRAIN_FEATURES + chosen
+    heldout = data[1]
+    strain = heldout.strain.transpose("step", "gp", "comp").values
+    assert np.all(strain[0] == 0.0)  # the material's fresh state is the dataset's step 0
+    x = features(heldout, chosen).reshape(strain.shape[0], strain.shape[1], -1)
+    mat = SurrogateMaterial(strain.shape[1], back, tangent="autodiff", anchor_initial_state=False)
+    for k in range(strain.shape[0]):
+        stress, D = mat.evaluate(strain[k])
+        mat.commit()
+        np.testing.assert_allclose(mat.history[:, 3:], heldout.history.sel(hist=["psi1", "psi2"]).values[k], rtol=1e-14)
+        np.testing.assert_allclose(stress, back.predict(x[k]), rtol=1e-10, atol=1e-6, err_msg=f"step {k}")
+        assert np.isfinite(D).all()
+    # unloading happens on this path: ψ1 is above the current strain norm somewhere
+    norms = np.sqrt(np.sum(np.array([1.0, 1, 1, 2, 2, 2]) * strain**2, axis=-1))
+    assert (heldout.history.sel(hist="psi1").values > norms * (1 + 1e-6)).any()
 
 
 def test_jacobian_loss_teaches_the_tangent(data):

@@ -20,7 +20,7 @@ from granular_multiscale.data import read_run, write_run
 from granular_multiscale.drivers.fem_ml import fem_ml_config, run_fem_ml, spread_variables
 from granular_multiscale.drivers.reference import run_fem_reference
 from granular_multiscale.fem.triaxial import TriaxialProblem
-from granular_multiscale.history import HIST, history_variables
+from granular_multiscale.history import PHI, phi_variables
 from granular_multiscale.materials.elastoplastic import Elastoplastic
 from granular_multiscale.paths import load_paths_from_config
 from granular_multiscale.surrogate.dataset import build_dataset
@@ -100,7 +100,7 @@ def test_spread_is_the_std_of_the_members_recomputed_from_the_run_file(runs, mod
     model = SurrogateModel.load(models[2])
     strain = ds.strain.transpose("step", "gp", "comp").values
     acc = np.cumsum(np.abs(np.diff(strain, axis=0, prepend=0.0)), axis=0)  # Δε_acc from the fresh state
-    phi = history_variables(acc)[..., [HIST.index(h) for h in model.history]]
+    phi = phi_variables(acc)[..., [PHI.index(h) for h in model.history]]
     x0 = np.asarray(model.initial_state["features"])[None]
     target0 = np.asarray(model.initial_state["targets"])
     p0 = ds.attrs["confining_pressure_Pa"]

@@ -7,7 +7,7 @@ Coordinates
     tcomp  21 labels of the upper triangle of the 6×6 tangent (tensors.TCOMP)
     tcomp36  36 labels of the full 6×6 tangent, row by row (tensors.TCOMP36); only in a run
            whose tangent is not symmetric
-    hist   "phi1","phi2","phi3" (history.HIST)
+    hist   "phi1","phi2","phi3","psi1","psi2" (history.HIST)
     node, xyz ("x","y","z"), iteration (Newton iteration within a step)
 
 Variables (units in each variable's attrs)
@@ -16,7 +16,7 @@ Variables (units in each variable's attrs)
     tangent(step,gp,tcomp)      Pa, upper triangle of dσ/d(engineering ε) at the converged state
                                 (of its symmetric part ½(D + Dᵀ) when the tangent is not symmetric)
     tangent_full(step,gp,tcomp36)  Pa, only when the tangent is not symmetric: all of it
-    history(step,gp,hist)       φ1–φ3 of the converged strains
+    history(step,gp,hist)       φ1–φ3, ψ1, ψ2 of the converged strains
     gp_position(gp,xyz), node_position(node,xyz), displacement(step,node,xyz)   m
     axial_strain(step)          compression positive
     top_force(step)             N, tension positive (= ∫σzz over the top face)

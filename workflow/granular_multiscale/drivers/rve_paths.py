@@ -209,7 +209,7 @@ def _dataset(paths: StrainPaths, records: dict, lost: np.ndarray, config: dict) 
             "stress": (sgc, stress, {"units": "Pa", "long_name": "RVE stress, tension positive; NaN once lost"}),
             "tangent": (sgt, tangent, {"units": "Pa", "long_name": "upper triangle of the contact-stiffness tangent "
                                                                    "dσ/d(engineering ε); NaN once lost"}),
-            "history": (("step", "gp", "hist"), history_from_sequence(strain), {"units": "1", "long_name": "φ1–φ3"}),
+            "history": (("step", "gp", "hist"), history_from_sequence(strain), {"units": "1", "long_name": "φ1–φ3, ψ1, ψ2"}),
             "family": (("gp",), paths.family.astype(str), {"long_name": "strain-path family of the trajectory"}),
             "valid": (("step", "gp"), valid, {"long_name": "the RVE still has its contact network"}),
             "lost_contact_step": (("gp",), lost.astype(int), {"long_name": "first step without it, -1 = never"}),

@@ -419,7 +419,7 @@ class TriaxialProblem:
             "stress": (("step", "gp", "comp"), np.asarray(rec["stress"]), "Pa", "Cauchy stress, tension positive"),
             **tangent_vars,  # tangent, and tangent_full when it is not symmetric
             "history": (("step", "gp", "hist"), history_from_sequence(strain), "1",
-                        "history variables phi1-phi3 of the converged strains"),
+                        "history variables phi1-phi3, psi1, psi2 of the converged strains"),
             "gp_position": (("gp", "xyz"), self.gp_positions, "m", "Gauss point coordinates (gp = element*8 + q)"),
             "node_position": (("node", "xyz"), self.node_positions, "m", "node coordinates"),
             "displacement": (("step", "node", "xyz"), np.asarray(rec["displacement"]), "m", "nodal displacement"),

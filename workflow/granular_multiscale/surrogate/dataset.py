@@ -2,21 +2,25 @@
 
 Every (step, trajectory) of every training source is one sample:
 
-    features  strain_11 .. strain_12 (tensorial, Voigt order of ``tensors.COMP``), phi1, phi2, phi3
+    features  strain_11 .. strain_12 (tensorial, Voigt order of ``tensors.COMP``), and those of
+              phi1, phi2, phi3, psi1, psi2 (``history.HIST``) that ``surrogate.history_variables`` selects
     targets   stress_11 .. stress_12 (Pa, tension positive)             -> NNσ
               tangent_1111 .. tangent_1212 (21 upper-triangle entries)  -> ND
 
 A *trajectory* is one Gauss point of a reference run (FEM–DEM or the elastoplastic model) or
-one RVE of an RVE-path set (``dem.strain_paths``). φ1–φ3 are recomputed from each trajectory's
-strain sequence (``history.history_from_sequence``), exactly as the surrogate material
-accumulates them during an FEM–ML run.
+one RVE of an RVE-path set (``dem.strain_paths``). The history variables (φ1–φ3, ψ1, ψ2) are
+recomputed from each trajectory's strain sequence (``history.history_from_sequence``), exactly as
+the surrogate material accumulates them during an FEM–ML run; a dataset holds all of them, the
+networks take the selected ones.
 
 Held out by trajectory class. On a symmetric mesh with one packing, mirrored Gauss points follow
 the same strain history; a held-out mirror image of a training point is a copy, not a test.
 :func:`trajectory_classes` groups the trajectories of a source whose histories agree, in the
 invariants of the square cross-section's symmetry, within ``surrogate.history_tolerance`` of the
 source's largest strain; :func:`split_trajectories` then holds out whole classes (seeded, per
-source, so every source is on both sides). The min–max scaling to (0, 1) is fitted on the
+source, so every source is on both sides). Split ``cover_range`` looks at the strains and φ1–φ3
+only, so adding ψ1, ψ2 did not change the split of any existing configuration; a ψ maximum that
+lands on the held-out side shows up in FEM–ML's out-of-range count. The min–max scaling to (0, 1) is fitted on the
 training samples only.
 
 Files (``train.h5``, ``heldout.h5``) follow the run-file contract: coordinates ``step``, ``gp``
@@ -39,7 +43,7 @@ import numpy as np
 import xarray as xr
 
 from ..atomic import atomic_path
-from ..history import HIST, history_from_sequence
+from ..history import HIST, PHI, history_from_sequence
 from ..tensors import COMP, TCOMP
 
 STRAIN_FEATURES = tuple(f"strain_{c}" for c in COMP)
@@ -56,9 +60,10 @@ class DatasetError(ValueError):
 
 def history_selection(history=True) -> tuple[str, ...]:
     """Which history variables a network takes: True = φ1–φ3 (the paper), False = none (the
-    ablation), or a list of names from ``history.HIST`` (config ``surrogate.history_variables``)."""
+    ablation), or a list of names from ``history.HIST`` (config ``surrogate.history_variables``),
+    returned in the order of ``HIST``."""
     if history is True:
-        return HIST
+        return PHI
     if history is False or history is None:
         return ()
     chosen = tuple(str(h) for h in history)
@@ -249,11 +254,11 @@ def build_dataset_from_sources(sources, train_fraction: float, seed: int, split:
         valid = _valid_of(run)
         stress = np.where(valid[..., None], run["stress"].values, np.nan)
         tangent = np.where(valid[..., None], run["tangent"].values, np.nan)
-        history = history_from_sequence(strain)  # [step, gp, 3], φ of each converged step
+        history = history_from_sequence(strain)  # [step, gp, 5], HIST of each converged step
         classes = (trajectory_classes(strain, history_tolerance) if history_tolerance > 0
                    else np.arange(run.sizes["gp"]))
-        feats = np.concatenate([strain, history], axis=-1)
-        always = range_extremes(np.where(valid[..., None], feats, np.nan)) if split == "cover_range" else ()
+        covered = np.concatenate([strain, history[..., [HIST.index(h) for h in PHI]]], axis=-1)  # not ψ: docstring
+        always = range_extremes(np.where(valid[..., None], covered, np.nan)) if split == "cover_range" else ()
         train_idx, _ = split_trajectories(classes, train_fraction, seed + k, always)
         is_train = np.zeros(run.sizes["gp"], dtype=bool)
         is_train[train_idx] = True
@@ -291,7 +296,7 @@ def build_dataset_from_sources(sources, train_fraction: float, seed: int, split:
     base = xr.Dataset(
         {
             "strain": (("step", "gp", "comp"), cat["strain"], {"units": "1", "long_name": "total strain, tensorial shear"}),
-            "history": (("step", "gp", "hist"), cat["history"], {"units": "1", "long_name": "history variables φ1–φ3 of the converged strain sequence"}),
+            "history": (("step", "gp", "hist"), cat["history"], {"units": "1", "long_name": "history variables φ1–φ3, ψ1, ψ2 of the converged strain sequence"}),
             "stress": (("step", "gp", "comp"), cat["stress"], {"units": "Pa", "long_name": "Cauchy stress, tension positive"}),
             "tangent": (("step", "gp", "tcomp"), cat["tangent"], {"units": "Pa", "long_name": "upper triangle of the 6×6 Voigt tangent on engineering strain" + (
                 # a run whose tangent is not symmetric stores its symmetric part here (data module)
@@ -336,7 +341,8 @@ def build_dataset_from_sources(sources, train_fraction: float, seed: int, split:
         "train_gp": mesh_points(train_idx),
         "heldout_gp": mesh_points(heldout_idx),
         "scaling": "min–max to (0, 1) fitted on the training samples: x_scaled = (x - min) / (max - min)",
-        "history_definition": "Δε_acc = Σ_k |ε(k) − ε(k−1)|; φ1 = Frobenius norm (off-diagonals twice), φ2 = trace, φ3 = product of the six components",
+        "history_definition": "Δε_acc = Σ_k |ε(k) − ε(k−1)|; φ1 = Frobenius norm (off-diagonals twice), φ2 = trace, "
+                              "φ3 = product of the six components; ψ1 = max_k ‖ε(k)‖_F, ψ2 = max_k ‖dev ε(k)‖_F",
     }
     if "config" in first.attrs:
         attrs["source_config"] = first.attrs["config"]
@@ -371,13 +377,23 @@ def sample_mask(ds: xr.Dataset) -> np.ndarray:
     return _valid_of(ds).reshape(-1)
 
 
+def _held(ds: xr.Dataset, chosen) -> tuple[str, ...]:
+    """`chosen` history variables, checked to be in the dataset (one written before ψ1, ψ2 existed holds φ1–φ3 only)."""
+    missing = [h for h in chosen if h not in ds["hist"].values]
+    if missing:
+        raise DatasetError(f"dataset ({ds.attrs.get('split', '?')} split of {ds.attrs.get('source', '?')}) has no history "
+                           f"variables {missing} (it holds {[str(h) for h in ds['hist'].values]}); rebuild it "
+                           "(rule surrogate_dataset) for config key 'surrogate.history_variables'")
+    return tuple(chosen)
+
+
 def features(ds: xr.Dataset, history=True) -> np.ndarray:
     """[samples, 6 + n_history] raw feature matrix, samples ordered step-major, the valid ones only
     (see history_selection, sample_mask)."""
     parts = [ds["strain"].transpose("step", "gp", "comp").values]
     chosen = history_selection(history)
     if chosen:
-        parts.append(ds["history"].sel(hist=list(chosen)).transpose("step", "gp", "hist").values)
+        parts.append(ds["history"].sel(hist=list(_held(ds, chosen))).transpose("step", "gp", "hist").values)
     x = np.concatenate(parts, axis=-1)
     return x.reshape(-1, x.shape[-1])[sample_mask(ds)]
 
@@ -392,6 +408,7 @@ def targets(ds: xr.Dataset, kind: str) -> np.ndarray:
 
 def scaling(ds: xr.Dataset, kind: str, history=True) -> dict[str, np.ndarray]:
     """Feature and target min/max stored with the dataset (fitted on the training points)."""
+    _held(ds, history_selection(history))
     names = list(feature_names(history))
     var = "stress" if kind == "sigma" else "tangent"
     target_names(kind)

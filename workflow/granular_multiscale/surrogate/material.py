@@ -1,20 +1,21 @@
 """The trained networks as a material-point set: what FEM–ML puts at the Gauss points.
 
 Per Newton iteration every Gauss point is answered by ONE batched forward pass (no loop
-over points). With ε_c and Δε_acc,c the converged strain and accumulated increment of the
-last committed step and ε the trial strain,
+over points). With ε_c, Δε_acc,c and ψ_c the converged strain, accumulated increment and
+running strain maxima of the last committed step and ε the trial strain (``history`` module),
 
-    Δε_acc = Δε_acc,c + |ε − ε_c|,   φ = φ(Δε_acc),   x = [ε, φ1, φ2, φ3]
-    σ = NNσ(x)
+    Δε_acc = Δε_acc,c + |ε − ε_c|,   φ = φ(Δε_acc),   ψ = max(ψ_c, ‖ε‖),
+    x = [ε, the selected ones of φ1, φ2, φ3, ψ1, ψ2],   σ = NNσ(x)
 
-and the history (ε_c, Δε_acc,c) advances only in :meth:`SurrogateMaterial.commit`.
+and the history (ε_c, Δε_acc,c, ψ_c) advances only in :meth:`SurrogateMaterial.commit`.
 
 Tangent options (config ``surrogate.tangent``):
 
 * ``nn``: ND(x), its 21 entries reassembled into the symmetric 6×6 Voigt matrix (Pa),
   the paper's choice;
 * ``autodiff``: the exact Jacobian of ε ↦ NNσ(ε, φ(ε)), including the chain rule through
-  φ1–φ3, which depend on the trial strain: forward-mode differentiation of the network in one
+  the history variables, which depend on the trial strain (ψ only while the trial norm exceeds
+  the converged maximum): forward-mode differentiation of the network in one
   batched pass (``ScaledMLP.forward_with_tangents``; tested against ``torch.func.jacrev``
   and finite differences). The network
   takes tensorial shear, the solver's tangent acts on engineering strain
@@ -35,7 +36,7 @@ its range (+ 1e-9 × its magnitude for round-off), and the excess is measured in
 The six strains share one range, the largest span of the six: they share units, and on a
 symmetric mesh a shear strain can be zero to round-off at every training point (a span of
 1e-17), so that its own span would flag every later roundoff-sized deviation as far out.
-Each φ has its own range.
+Each history variable has its own range.
 
 Ensemble spread (``surrogate.ensemble_size`` K): each evaluation keeps the K members' NNσ
 (their mean is the stress; no extra pass), and at every commit
@@ -58,7 +59,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..history import HIST, accumulate, accumulate_torch, history_jacobian_torch, history_variables_torch
+from ..history import HIST, accumulate, history_jacobian_torch, history_variables, running_peak, strain_norms
 from ..materials.base import MaterialPointSet
 from ..tensors import ENGINEERING_FACTOR, UPPER, voigt_to_tensor
 from .dataset import STRAIN_FEATURES
@@ -145,6 +146,7 @@ class SurrogateMaterial(MaterialPointSet):
 
         self._strain_c = np.zeros((self.n_points, 6))
         self._acc_c = np.zeros((self.n_points, 6))
+        self._peak_c = np.zeros((self.n_points, 2))  # running maxima (ψ1, ψ2) of the converged steps
         self._trial: np.ndarray | None = None
         self._trial_members: torch.Tensor | None = None
         self._trial_out_of_range: tuple[np.ndarray, np.ndarray] | None = None
@@ -188,9 +190,13 @@ class SurrogateMaterial(MaterialPointSet):
         self._span = np.where(span > 0, span, 1.0)
         self.feature_names = self.sigma_model.feature_names
 
-    def _features(self, strain: torch.Tensor, acc_c: torch.Tensor, strain_c: torch.Tensor) -> torch.Tensor:
-        """[..., 6] trial strain -> [..., 9] (or [..., 6] without history) network features."""
-        return trial_features(strain, acc_c, strain_c, self.sigma_model.history)
+    def _converged(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The converged state (Δε_acc,c, ε_c, ψ_c) as tensors, in the order the feature functions take."""
+        return torch.from_numpy(self._acc_c), torch.from_numpy(self._strain_c), torch.from_numpy(self._peak_c)
+
+    def _features(self, strain: torch.Tensor, acc_c, strain_c, peak_c) -> torch.Tensor:
+        """[..., 6] trial strain -> [..., 6 + n_history] network features."""
+        return trial_features(strain, acc_c, strain_c, peak_c, self.sigma_model.history)
 
     def _out_of_range(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per point: any feature outside the training range; excess in units of the training range."""
@@ -203,13 +209,12 @@ class SurrogateMaterial(MaterialPointSet):
     def evaluate(self, strain: np.ndarray, need_tangent: bool = True):
         strain = self._check_strain(strain)
         eps = torch.from_numpy(strain)
-        acc_c = torch.from_numpy(self._acc_c)
-        eps_c = torch.from_numpy(self._strain_c)
+        converged = self._converged()
         with torch.no_grad():
-            x = self._features(eps, acc_c, eps_c)
+            x = self._features(eps, *converged)
             if need_tangent and self.tangent == "autodiff":
                 sigma, jac, members = self._sigma_net.forward_with_tangents_members(
-                    x, self._feature_jacobian(eps, acc_c, eps_c))
+                    x, self._feature_jacobian(eps, *converged))
                 sigma = sigma + self._sigma_offset
                 tangent = jac / self._eng  # ∂σ/∂ε (tensorial) -> acts on engineering strain
             else:
@@ -227,19 +232,19 @@ class SurrogateMaterial(MaterialPointSet):
         self._trial_out_of_range = self._out_of_range(x.numpy())
         return stress, tangent_np
 
-    def _feature_jacobian(self, strain, acc_c, strain_c) -> torch.Tensor:
+    def _feature_jacobian(self, strain, acc_c, strain_c, peak_c) -> torch.Tensor:
         """[n, n_features, 6]: d(features)/d(trial strain), the chain rule through the history variables."""
         n = strain.shape[0]
         eye = torch.eye(6, dtype=strain.dtype).expand(n, 6, 6)
         history = self.sigma_model.history
         if not history:
             return eye
-        d_phi = history_jacobian_torch(accumulate_torch(acc_c, strain_c, strain))[:, [HIST.index(h) for h in history], :]
-        return torch.cat([eye, d_phi * torch.sign(strain - strain_c)[:, None, :]], dim=1)
+        d_history = history_jacobian_torch(strain, acc_c, strain_c, peak_c)[:, [HIST.index(h) for h in history], :]
+        return torch.cat([eye, d_history], dim=1)
 
-    def _stress_with_aux(self, strain, acc_c, strain_c):
+    def _stress_with_aux(self, strain, acc_c, strain_c, peak_c):
         """Reference path for the autodiff tangent (tests): torch.func.jacrev of this function."""
-        sigma = self._sigma_net(self._features(strain, acc_c, strain_c)) + self._sigma_offset
+        sigma = self._sigma_net(self._features(strain, acc_c, strain_c, peak_c)) + self._sigma_offset
         return sigma, sigma
 
     def commit(self, strain=None) -> None:
@@ -248,6 +253,7 @@ class SurrogateMaterial(MaterialPointSet):
             raise RuntimeError(f"{type(self).__name__}.commit() called before evaluate()")
         self._spread.append(self._member_spread(self._trial_members))
         self._acc_c = accumulate(self._acc_c, self._strain_c, self._trial)
+        self._peak_c = running_peak(self._peak_c, self._trial)
         self._strain_c = self._trial
         self._commits += 1
         flagged, excess = self._trial_out_of_range
@@ -281,26 +287,36 @@ class SurrogateMaterial(MaterialPointSet):
         return dict(self._step_info)
 
     def get_state(self) -> dict[str, Any]:
-        return {"strain": self._strain_c.copy(), "accumulated": self._acc_c.copy(), "commits": self._commits,
-                "stress_spread": self.stress_spread}
+        return {"strain": self._strain_c.copy(), "accumulated": self._acc_c.copy(), "peak": self._peak_c.copy(),
+                "commits": self._commits, "stress_spread": self.stress_spread}
 
     def set_state(self, state: dict[str, Any]) -> None:
+        """Restore a converged state of :meth:`get_state`. A state without ``peak`` (the running maxima
+        ψ1, ψ2; a checkpoint written before they existed, or a hand-made state) is taken to be at its
+        peak: ψ = the norms of its strain."""
         strain = np.asarray(state["strain"], dtype=float)
         acc = np.asarray(state["accumulated"], dtype=float)
         if strain.shape != (self.n_points, 6) or acc.shape != (self.n_points, 6):
             raise ValueError(f"state for {strain.shape[0]} points, this set has {self.n_points}")
+        norms = strain_norms(strain)
+        peak = np.asarray(state["peak"], dtype=float) if "peak" in state else norms
+        if peak.shape != (self.n_points, 2):
+            raise ValueError(f"state 'peak' (running maxima ψ1, ψ2) has shape {peak.shape}, expected ({self.n_points}, 2)")
+        below = np.flatnonzero((peak < norms * (1 - 1e-12)).any(axis=1))
+        if below.size:
+            raise ValueError(f"state 'peak' is below the norm of the converged strain at points {below[:5].tolist()}: "
+                             "not a running maximum")
         commits = int(state.get("commits", 0))
         spread = np.asarray(state.get("stress_spread", np.zeros((0, self.n_points, 6))), dtype=float)
         if spread.shape != (commits, self.n_points, 6):
             raise ValueError(f"state of {commits} committed states at {self.n_points} points holds an ensemble-spread "
                              f"record of shape {spread.shape} (a checkpoint written before the spread was recorded?)")
-        self._strain_c, self._acc_c = strain.copy(), acc.copy()
+        self._strain_c, self._acc_c, self._peak_c = strain.copy(), acc.copy(), peak.copy()
         self._commits = commits
         self._spread = list(spread)
         self._trial = None
 
     @property
     def history(self) -> np.ndarray:
-        """[n, 3] φ1–φ3 of the converged state."""
-        with torch.no_grad():
-            return history_variables_torch(torch.from_numpy(self._acc_c)).numpy()
+        """[n, 5] the variables of ``history.HIST`` (φ1–φ3, ψ1, ψ2) of the converged state."""
+        return history_variables(self._acc_c, self._peak_c)

@@ -23,7 +23,7 @@ import torch
 from torch import nn
 
 from ..atomic import atomic_path
-from ..history import HIST, accumulate_torch, history_variables_torch
+from ..history import HIST, trial_history_torch
 from .dataset import STRAIN_FEATURES, feature_names, history_selection, target_names
 
 FORMAT = "granular_multiscale.surrogate/2"
@@ -40,19 +40,21 @@ ACTIVATIONS = {
 }
 
 
-def trial_features(strain: torch.Tensor, acc_c: torch.Tensor, strain_c: torch.Tensor, history=True) -> torch.Tensor:
-    """[..., 6] trial strain with the converged strain and Δε_acc of the last step -> network features.
+def trial_features(strain: torch.Tensor, acc_c: torch.Tensor, strain_c: torch.Tensor, peak_c: torch.Tensor,
+                   history=True) -> torch.Tensor:
+    """[..., 6] trial strain with the converged strain, Δε_acc and running maxima (ψ1, ψ2) of the
+    last step -> network features.
 
-    Δε_acc = Δε_acc,c + |ε − ε_c| and φ = φ(Δε_acc): differentiable in the trial strain, so the
-    autodiff tangent and the Jacobian loss both see the chain rule through φ1–φ3. `history`
-    selects the φ's (see dataset.history_selection)."""
+    Δε_acc = Δε_acc,c + |ε − ε_c|, φ = φ(Δε_acc), ψ = max(ψ_c, ‖ε‖) (history module): differentiable
+    in the trial strain, so the autodiff tangent and the Jacobian loss both see the chain rule
+    through the history variables. `history` selects them (see dataset.history_selection)."""
     chosen = history_selection(history)
     if not chosen:
         return strain
-    phi = history_variables_torch(accumulate_torch(acc_c, strain_c, strain))
+    values = trial_history_torch(strain, acc_c, strain_c, peak_c)
     if chosen != HIST:
-        phi = phi[..., [HIST.index(h) for h in chosen]]
-    return torch.cat([strain, phi], dim=-1)
+        values = values[..., [HIST.index(h) for h in chosen]]
+    return torch.cat([strain, values], dim=-1)
 
 
 class ModelFileError(ValueError):

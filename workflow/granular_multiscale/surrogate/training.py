@@ -25,7 +25,7 @@ import xarray as xr
 from torch.func import jvp
 
 from ..atomic import atomic_path
-from ..history import accumulated_from_sequence
+from ..history import accumulated_from_sequence, peak_from_sequence
 from ..tensors import ENGINEERING_FACTOR, tangent_from_upper
 from .dataset import features, history_selection, sample_mask, scaling, target_names, targets
 from .models import EnsembleMLP, ScaledMLP, SurrogateModel, trial_features
@@ -60,12 +60,11 @@ def _loss_fn(name: str):
 
 
 def _jacobian_data(ds: xr.Dataset, net, device) -> dict[str, torch.Tensor]:
-    """Per training sample: trial strain, converged strain and Δε_acc of the previous step, and the
+    """Per training sample: trial strain, converged strain, Δε_acc and running maxima ψ of the previous step, and the
     reference tangent as the Jacobian of the SCALED stress wrt the SCALED strain."""
     strain = ds["strain"].transpose("step", "gp", "comp").values
-    acc = accumulated_from_sequence(strain)
-    strain_c = np.concatenate([strain[:1], strain[:-1]])
-    acc_c = np.concatenate([acc[:1], acc[:-1]])
+    previous = lambda a: np.concatenate([a[:1], a[:-1]])  # noqa: E731  (step 0 is its own predecessor)
+    strain_c, acc_c, peak_c = previous(strain), previous(accumulated_from_sequence(strain)), previous(peak_from_sequence(strain))
     # D acts on engineering strain; ∂σ/∂ε (tensorial) = D · diag(1, 1, 1, 2, 2, 2)
     jac = tangent_from_upper(ds["tangent"].transpose("step", "gp", "tcomp").values) * ENGINEERING_FACTOR
     x_scale = net.x_scale[:6].detach().cpu().double().numpy()
@@ -75,7 +74,8 @@ def _jacobian_data(ds: xr.Dataset, net, device) -> dict[str, torch.Tensor]:
     varies = (net.x_max[:6] - net.x_min[:6] > 0) & (net.x_scale[:6] != 1.0)
     keep = sample_mask(ds)  # padding and lost-contact entries are no samples
     flat = lambda a: torch.as_tensor(a.reshape(-1, *a.shape[2:])[keep], dtype=torch.float32, device=device)  # noqa: E731
-    return {"strain": flat(strain), "strain_c": flat(strain_c), "acc_c": flat(acc_c), "target": flat(jac_scaled),
+    return {"strain": flat(strain), "strain_c": flat(strain_c), "acc_c": flat(acc_c), "peak_c": flat(peak_c),
+            "target": flat(jac_scaled),
             "mask": varies.to(device=device, dtype=torch.float32), "x_scale": net.x_scale[:6].detach()}
 
 
@@ -84,10 +84,10 @@ def _directional_slopes(net, jac: dict, idx, history, generator):
     sample (forward mode, one pass) next to the reference tangent's: a stochastic Jacobian loss."""
     v = torch.randn(len(idx), 6, generator=generator).to(jac["mask"].device) * jac["mask"]
     v = v / v.norm(dim=1, keepdim=True).clamp_min(1e-12)
-    acc_c, strain_c = jac["acc_c"][idx], jac["strain_c"][idx]
+    acc_c, strain_c, peak_c = jac["acc_c"][idx], jac["strain_c"][idx], jac["peak_c"][idx]
 
     def scaled_stress(strain):
-        return net.forward_scaled(net.scale_x(trial_features(strain, acc_c, strain_c, history)))
+        return net.forward_scaled(net.scale_x(trial_features(strain, acc_c, strain_c, peak_c, history)))
 
     prediction, slope = jvp(scaled_stress, (jac["strain"][idx],), (v * jac["x_scale"],))
     return prediction, slope, torch.einsum("bij,bj->bi", jac["target"][idx], v)
