@@ -83,3 +83,169 @@ def test_replayed_rve_is_bit_for_bit_the_rve_that_followed_the_strains(tmp_path_
                 dem.commit(last)
             assert np.array_equal(resumed.conv_stress, mixed.conv_stress)
             assert np.array_equal(resumed.strain_record[-1], last)
+
+
+# -- the adaptive set in the FEM solver --------------------------------------------------------------
+PATH = [[3, 0.003], [2, 0.0015], [3, 0.005]]  # loading, unloading, reloading: 8 steps
+STEPS = 8
+# what must not depend on how a run was made (FEM–DEM: also the DEM accounting that is not timing)
+SAME = ("strain", "stress", "tangent", "displacement", "top_force", "volumetric_strain", "newton_iterations",
+        "residual_norm", "cutbacks")
+DEM_SAME = ("particle_steps", "trials")
+
+
+def assert_same(a, b, names=SAME):
+    for name in names:
+        x, y = a[name].values, b[name].values
+        if name == "residual_norm":  # NaN-padded to the run's longest step
+            width = min(x.shape[1], y.shape[1])
+            assert np.isnan(x[:, width:]).all() and np.isnan(y[:, width:]).all()
+            x, y = x[:, :width], y[:, :width]
+        assert np.array_equal(x, y, equal_nan=True), name
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    """(config, packing paths, NNσ model file): the tiny mesh (16 Gauss points, 100-sphere RVEs) with
+    FEM–DEM's Newton settings for every run, so that FEM–ML, FEM–DEM and adaptive runs compare bit for
+    bit; an ensemble of 2 NNσ trained in seconds on the elastoplastic model."""
+    import torch
+
+    from granular_multiscale.drivers.fem_dem import dem_newton_config
+    from granular_multiscale.materials.elastoplastic import Elastoplastic
+    from granular_multiscale.paths import load_paths_from_config
+    from granular_multiscale.surrogate.dataset import build_dataset
+    from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
+    from granular_multiscale.surrogate.training import train
+    from dem_fixtures import tiny_config
+
+    torch.set_num_threads(1)
+    folder = tmp_path_factory.mktemp("adaptive")
+    path, _ = packing(tmp_path_factory)
+    config = tiny_config(folder / "out", {"p": PATH})
+    config["newton"].update(dem_newton_config(config)["newton"])
+    config["surrogate"].update(newton={}, ensemble_size=2, epochs=150, learning_rate=5e-3, batch_size=256)
+    load_path = load_paths_from_config(config)["p"]
+    run = material_point_run(Elastoplastic.from_config(12, config), triaxial_strain_paths(load_path, 12, seed=2),
+                             load_path)
+    sigma, _, _ = train(*build_dataset(run, 0.75, seed=0), "sigma", config["surrogate"], seed=0, config=config)
+    sigma.save(folder / "sigma.pt")
+    return config, [str(path)], str(folder / "sigma.pt")
+
+
+def adaptive(setup, threshold, anchor_fraction=0.0, **kwargs):
+    from granular_multiscale.drivers.adaptive import run_adaptive
+
+    config, packings, sigma = setup
+    config = {**config, "adaptive": {**config["adaptive"], "anchor_fraction": anchor_fraction}}
+    return run_adaptive(config, "p", threshold, packings, sigma, None, "autodiff", n_workers=2, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def fem_ml_run(setup):
+    from granular_multiscale.drivers.fem_ml import run_fem_ml
+
+    config, _, sigma = setup
+    return run_fem_ml(config, "p", sigma, None, "autodiff", progress=False)
+
+
+@pytest.fixture(scope="module")
+def fem_dem_run(setup, tmp_path_factory):
+    from granular_multiscale.drivers.fem_dem import run_fem_dem
+
+    config, packings, _ = setup
+    return run_fem_dem(config, "p", packings, str(tmp_path_factory.mktemp("fem_dem") / "p.h5"), None, 2)
+
+
+def test_threshold_infinity_is_fem_ml(setup, fem_ml_run):
+    run = adaptive(setup, np.inf)
+    assert run.sizes["step"] == STEPS + 1 and run.attrs["completed"] == 1
+    assert_same(run, fem_ml_run, SAME + ("stress_spread", "stress_spread_relative"))
+    assert not run.point_mode.values.any() and run.attrs["dem_particle_steps"] == 0
+    assert run.attrs["method"] == "adaptive" and run.attrs["adaptive_threshold"] == np.inf
+    # the indicator it records is FEM–ML's relative spread (the stress is the surrogate's everywhere)
+    np.testing.assert_array_equal(run.indicator.values, fem_ml_run.stress_spread_relative.values)
+
+
+def test_threshold_zero_and_all_anchors_are_fem_dem(setup, fem_dem_run):
+    for run in (adaptive(setup, 0.0), adaptive(setup, np.inf, anchor_fraction=1.0)):
+        assert_same(run, fem_dem_run, SAME + DEM_SAME)
+        assert run.point_mode.values.all() and run.attrs["dem_point_fraction"] == 1.0
+        # every point DEM from the first evaluation on: nothing to replay
+        assert run.attrs["dem_replay_particle_steps"] == 0
+        assert run.attrs["dem_particle_steps"] == fem_dem_run.attrs["dem_particle_steps"] > 0
+    assert run.attrs["adaptive_anchors"] == 16 and int(run.promotions.sum()) == 0
+
+
+RUNNER = """
+import pickle, sys
+from granular_multiscale.drivers.adaptive import run_adaptive
+from granular_multiscale.runlog import setup_logging
+config, threshold, packings, sigma, output, checkpoint = pickle.load(open(sys.argv[1], "rb"))
+run_adaptive(config, "p", threshold, packings, sigma, None, "autodiff", output, checkpoint, 2, setup_logging(None))
+"""
+
+
+def test_promotions_and_resume_after_kill(setup, fem_ml_run, fem_dem_run, tmp_path):
+    """A threshold between: the points whose spread reaches it at the middle of the path go DEM there
+    (replaying their history), the others stay surrogate; killed after the first promotion and
+    started again, the run ends with the numbers of the uninterrupted run."""
+    import os
+    import pickle
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from granular_multiscale.data import read_run
+
+    # FEM–ML's spread grows from step 1 to step 3 (3 % at most, 1 % at step 1; the networks are rough):
+    # a threshold in between promotes nobody at step 1, somebody by step 3
+    indicator = fem_ml_run.stress_spread_relative.values
+    threshold = 0.5 * (indicator[1].max() + indicator[3].max())
+    run = adaptive(setup, threshold, checkpoint=tmp_path / "full.ckpt")
+    mode = run.point_mode.values
+    first = int(np.flatnonzero(mode.any(axis=1))[0])
+    assert 2 <= first <= 3 and 0 < mode[-1].sum() < 16, mode.sum(axis=1)
+    assert np.all(np.diff(mode, axis=0) >= 0)  # DEM once promoted
+    assert np.array_equal(run.dem_points.values, mode.sum(axis=1))
+    assert np.array_equal(run.promotions.values, np.diff(mode.sum(axis=1), prepend=0))
+    # the converged state of every step: each surrogate point's indicator is below the threshold
+    assert np.all(run.indicator.values[mode == 0] < threshold)
+    # a promoted point replayed its history (one DEM increment per past commit); before it, FEM–ML exactly
+    promoted = run.promotions.values > 0
+    assert np.all(run.replay_particle_steps.values[promoted] > 0) and np.all(run.replay_particle_steps[~promoted] == 0)
+    assert run.attrs["dem_replay_particle_steps"] == run.replay_particle_steps.sum()
+    # DEM ran at the DEM points only: trials and replays together cost less than FEM–DEM at all 16
+    assert 0 < run.attrs["dem_particle_steps"] < 0.9 * fem_dem_run.attrs["dem_particle_steps"]
+    assert_same(run.isel(step=slice(0, first)), fem_ml_run.isel(step=slice(0, first)))
+    assert not np.array_equal(run.stress.values[first:], fem_ml_run.stress.values[first:])
+    assert not (tmp_path / "full.ckpt").exists()  # removed after success
+
+    config, packings, sigma = setup
+    checkpoint, output = tmp_path / "killed.ckpt", tmp_path / "killed.h5"
+    args = tmp_path / "args.pkl"
+    args.write_bytes(pickle.dumps((config, threshold, packings, sigma, str(output), str(checkpoint))))
+
+    def start():
+        return subprocess.Popen([sys.executable, "-c", RUNNER, str(args)], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+    proc, step, deadline = start(), -1, time.time() + 300
+    while time.time() < deadline and proc.poll() is None and step < first + 1:
+        try:
+            step = pickle.loads(checkpoint.read_bytes())["step"]
+        except Exception:
+            pass
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert first + 1 <= step < STEPS and not output.exists(), proc.stderr.read()[-2000:]
+    again = start()
+    _, err = again.communicate(timeout=300)
+    assert again.returncode == 0, err[-3000:]
+    assert f"resuming from checkpoint {checkpoint} after step {step}" in err
+    assert "DEM subset resumed" in err and "differ from the checkpoint" not in err
+    resumed = read_run(output)
+    assert_same(resumed, run, SAME + ("point_mode", "indicator", "promotions", "particle_steps",
+                                      "replay_particle_steps", "stress_spread"))

@@ -116,6 +116,9 @@ def _check_consistency(config: dict) -> None:
         if not kind and name not in paths:
             raise ConfigError(f"config key 'surrogate.training_sources': unknown load path {name!r}; defined paths: "
                               f"{sorted(paths)}")
+    for name in config["adaptive"]["paths"]:
+        if name not in paths:
+            raise ConfigError(f"config key 'adaptive.paths': unknown load path {name!r}; defined paths: {sorted(paths)}")
     study = config["tolerance_study"]
     if study["path"] not in paths:
         raise ConfigError(f"config key 'tolerance_study.path': unknown path {study['path']!r}; defined paths: "
