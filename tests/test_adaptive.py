@@ -11,12 +11,31 @@ elastoplastic model (as tests/test_surrogate_uncertainty.py), so they disagree w
 
 from __future__ import annotations
 
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import numpy as np
 import pytest
-from dem_fixtures import SETTINGS, packing
+import torch
+import yaml
+from dem_fixtures import ROOT, SETTINGS, packing, tiny_config
 
+from granular_multiscale.data import read_run
 from granular_multiscale.dem.material import DemMaterialPointSet
 from granular_multiscale.dem.subset import DemSubsetMaterialPointSet
+from granular_multiscale.drivers.adaptive import run_adaptive
+from granular_multiscale.drivers.fem_dem import dem_newton_config, run_fem_dem
+from granular_multiscale.drivers.fem_ml import run_fem_ml
+from granular_multiscale.materials.elastoplastic import Elastoplastic
+from granular_multiscale.paths import load_paths_from_config
+from granular_multiscale.surrogate.dataset import build_dataset
+from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
+from granular_multiscale.surrogate.training import train
 
 pytestmark = pytest.mark.slow
 
@@ -109,16 +128,6 @@ def setup(tmp_path_factory):
     """(config, packing paths, NNσ model file): the tiny mesh (16 Gauss points, 100-sphere RVEs) with
     FEM–DEM's Newton settings for every run, so that FEM–ML, FEM–DEM and adaptive runs compare bit for
     bit; an ensemble of 2 NNσ trained in seconds on the elastoplastic model."""
-    import torch
-
-    from granular_multiscale.drivers.fem_dem import dem_newton_config
-    from granular_multiscale.materials.elastoplastic import Elastoplastic
-    from granular_multiscale.paths import load_paths_from_config
-    from granular_multiscale.surrogate.dataset import build_dataset
-    from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
-    from granular_multiscale.surrogate.training import train
-    from dem_fixtures import tiny_config
-
     torch.set_num_threads(1)
     folder = tmp_path_factory.mktemp("adaptive")
     path, _ = packing(tmp_path_factory)
@@ -134,8 +143,6 @@ def setup(tmp_path_factory):
 
 
 def adaptive(setup, threshold, anchor_fraction=0.0, **kwargs):
-    from granular_multiscale.drivers.adaptive import run_adaptive
-
     config, packings, sigma = setup
     config = {**config, "adaptive": {**config["adaptive"], "anchor_fraction": anchor_fraction}}
     return run_adaptive(config, "p", threshold, packings, sigma, None, "autodiff", n_workers=2, **kwargs)
@@ -143,16 +150,12 @@ def adaptive(setup, threshold, anchor_fraction=0.0, **kwargs):
 
 @pytest.fixture(scope="module")
 def fem_ml_run(setup):
-    from granular_multiscale.drivers.fem_ml import run_fem_ml
-
     config, _, sigma = setup
     return run_fem_ml(config, "p", sigma, None, "autodiff", progress=False)
 
 
 @pytest.fixture(scope="module")
 def fem_dem_run(setup, tmp_path_factory):
-    from granular_multiscale.drivers.fem_dem import run_fem_dem
-
     config, packings, _ = setup
     return run_fem_dem(config, "p", packings, str(tmp_path_factory.mktemp("fem_dem") / "p.h5"), None, 2)
 
@@ -186,24 +189,24 @@ run_adaptive(config, "p", threshold, packings, sigma, None, "autodiff", output, 
 """
 
 
-def test_promotions_and_resume_after_kill(setup, fem_ml_run, fem_dem_run, tmp_path):
-    """A threshold between: the points whose spread reaches it at the middle of the path go DEM there
-    (replaying their history), the others stay surrogate; killed after the first promotion and
-    started again, the run ends with the numbers of the uninterrupted run."""
-    import os
-    import pickle
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    from granular_multiscale.data import read_run
-
-    # FEM–ML's spread grows from step 1 to step 3 (3 % at most, 1 % at step 1; the networks are rough):
-    # a threshold in between promotes nobody at step 1, somebody by step 3
+@pytest.fixture(scope="module")
+def between(setup, fem_ml_run, tmp_path_factory):
+    """(threshold, run): FEM–ML's spread grows from step 1 to step 3 (1 % at most at step 1, 3 % at
+    step 3; the networks are rough): a threshold in between promotes nobody at step 1, somebody by
+    step 3. The run keeps a checkpoint (removed at the end)."""
     indicator = fem_ml_run.stress_spread_relative.values
-    threshold = 0.5 * (indicator[1].max() + indicator[3].max())
-    run = adaptive(setup, threshold, checkpoint=tmp_path / "full.ckpt")
+    threshold = float(0.5 * (indicator[1].max() + indicator[3].max()))
+    checkpoint = tmp_path_factory.mktemp("between") / "full.ckpt"
+    run = adaptive(setup, threshold, checkpoint=checkpoint)
+    assert not checkpoint.exists()  # removed after success
+    return threshold, run
+
+
+def test_promotions_and_resume_after_kill(setup, between, fem_ml_run, fem_dem_run, tmp_path):
+    """At the threshold between: the points whose spread reaches it go DEM (replaying their history),
+    the others stay surrogate; killed after the first promotion and started again, the run ends with
+    the numbers of the uninterrupted run."""
+    threshold, run = between
     mode = run.point_mode.values
     first = int(np.flatnonzero(mode.any(axis=1))[0])
     assert 2 <= first <= 3 and 0 < mode[-1].sum() < 16, mode.sum(axis=1)
@@ -220,7 +223,6 @@ def test_promotions_and_resume_after_kill(setup, fem_ml_run, fem_dem_run, tmp_pa
     assert 0 < run.attrs["dem_particle_steps"] < 0.9 * fem_dem_run.attrs["dem_particle_steps"]
     assert_same(run.isel(step=slice(0, first)), fem_ml_run.isel(step=slice(0, first)))
     assert not np.array_equal(run.stress.values[first:], fem_ml_run.stress.values[first:])
-    assert not (tmp_path / "full.ckpt").exists()  # removed after success
 
     config, packings, sigma = setup
     checkpoint, output = tmp_path / "killed.ckpt", tmp_path / "killed.h5"
@@ -249,3 +251,29 @@ def test_promotions_and_resume_after_kill(setup, fem_ml_run, fem_dem_run, tmp_pa
     resumed = read_run(output)
     assert_same(resumed, run, SAME + ("point_mode", "indicator", "promotions", "particle_steps",
                                       "replay_particle_steps", "stress_spread"))
+
+
+def test_rule_writes_the_run_its_log_and_benchmark(setup, between, tmp_path):
+    """`snakemake <out>/adaptive/t<threshold>/p.h5` with the packing and networks in place (only the
+    rule adaptive may run): the run of the driver, with the threshold from adaptive.thresholds."""
+    config, packings, sigma = setup
+    threshold, run = between
+    out = tmp_path / "out"
+    for source, target in ((packings[0], out / "rve" / "packing_0.yade.gz"), (sigma, out / "models" / "nn_sigma.pt"),
+                           (sigma, out / "models" / "nn_tangent.pt")):  # the autodiff tangent reads no ND
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(open(source, "rb").read())
+    config = {**config, "output_dir": str(out), "adaptive": {**config["adaptive"], "thresholds": [threshold, 0.5]},
+              "surrogate": {**config["surrogate"], "tangent": "autodiff"}}
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+    target = out / "adaptive" / f"t{threshold:g}" / "p.h5"
+    snakemake = Path(sys.executable).with_name("snakemake")
+    result = subprocess.run([str(snakemake), "-j2", "--configfile", str(tmp_path / "config.yaml"), "--allowed-rules",
+                             "adaptive", "--", str(target)], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    written = read_run(target)
+    assert written.attrs["adaptive_threshold"] == threshold
+    assert_same(written, run, SAME + ("point_mode", "promotions", "replay_particle_steps"))
+    log = (out / "logs" / "adaptive" / f"t{threshold:g}" / "p.log").read_text()
+    assert "promoted to DEM" in log and "particle-steps (trials" in log
+    assert (out / "benchmarks" / "adaptive" / f"t{threshold:g}" / "p.tsv").exists()
