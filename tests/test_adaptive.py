@@ -277,3 +277,42 @@ def test_rule_writes_the_run_its_log_and_benchmark(setup, between, tmp_path):
     log = (out / "logs" / "adaptive" / f"t{threshold:g}" / "p.log").read_text()
     assert "promoted to DEM" in log and "particle-steps (trials" in log
     assert (out / "benchmarks" / "adaptive" / f"t{threshold:g}" / "p.tsv").exists()
+
+
+def test_report_rows_curve_and_mode_map(setup, between, fem_ml_run, fem_dem_run, tmp_path):
+    """With adaptive.report the adaptive runs are rows of the speedup and accuracy tables, a curve
+    from FEM–ML to FEM–DEM in the speed-vs-error figure, and the mode map: here from the real runs."""
+    from granular_multiscale.analysis import figures, products
+    from granular_multiscale.data import write_run
+    from granular_multiscale.surrogate.dataset import build_dataset_from_sources, write_dataset
+
+    config, _, _ = setup
+    threshold, run = between
+    labels = {"FEM–DEM": fem_dem_run, "FEM–ML": fem_ml_run, f"adaptive FEM–DEM–ML, threshold {threshold:g}": run}
+    files = {label: str(write_run(ds, tmp_path / f"run{k}.h5")) for k, (label, ds) in enumerate(labels.items())}
+    train, heldout = build_dataset_from_sources([(files["FEM–DEM"], fem_dem_run)], 0.75, 0,
+                                                split=config["surrogate"]["split"],
+                                                history_tolerance=config["surrogate"]["history_tolerance"])
+    write_dataset(train, tmp_path / "train.h5")
+    write_dataset(heldout, tmp_path / "heldout.h5")
+    speed = products.make_speedup_outputs(files, tmp_path / "speedup.csv", tmp_path / "speedup.html", path_label="P",
+                                          paper_reference=config["analysis"]["paper_reference"], machine="here")
+    accuracy = products.make_accuracy_table(files, tmp_path / "train.h5", tmp_path / "heldout.h5",
+                                            tmp_path / "accuracy.csv", tmp_path / "accuracy.html", path_label="P")
+    adaptive_label = list(labels)[2]
+    assert adaptive_label in speed["method"].tolist()
+    errors = accuracy.set_index("method")["top_force_max_rel_pct"]
+    # DEM at 8 of 16 points takes most of the way from FEM–ML's error to FEM–DEM's 0
+    assert errors[adaptive_label] < 0.5 * errors["FEM–ML"]
+    curve = ["FEM–ML", adaptive_label, "FEM–DEM"]
+    table, _ = products.speed_error_table(tmp_path / "speedup.csv", tmp_path / "accuracy.csv", curve)
+    assert table.set_index("label")["curve"].to_dict() == {"FEM–DEM": 2.0, "FEM–ML": 0.0, adaptive_label: 1.0}
+    settings = {**config["analysis"], "field_steps": [2, 4, -1]}
+    products.make_speed_vs_error(tmp_path / "speedup.csv", tmp_path / "accuracy.csv", tmp_path / "speed.png",
+                                 settings, curve=curve)
+    products.make_mode_map({adaptive_label: files[adaptive_label]}, tmp_path / "modes.png", settings, path_label="P")
+    for png in ("speed.png", "modes.png"):
+        assert (tmp_path / png).stat().st_size > 10_000
+    # the map's colour: the DEM share of the points at each (x, z), 2 behind each other on this mesh
+    columns, share = figures.dem_share_xz(run, STEPS)
+    assert len(columns) == 8 and np.isclose(2 * share.sum(), run.point_mode.values[STEPS].sum())

@@ -5,8 +5,9 @@
 #                   {OUT}/checkpoints/adaptive/ (not a declared output: a rerun after a kill resumes)
 #   adaptive_runs   every threshold of adaptive.thresholds on every path of adaptive.paths
 #
-# Not in `all`: at the default scale each run costs its DEM share of a FEM–DEM run (plus the
-# replays); `snakemake -j2 adaptive_runs` runs them.
+# Not in `all` unless adaptive.report (then the report's speed figure, tables and mode map show
+# the validation path's runs, analysis.smk): at the default scale each run costs its DEM share
+# of a FEM–DEM run plus the replays; `snakemake -j2 adaptive_runs` runs them.
 import re
 
 from granular_multiscale.adaptive import threshold_label
@@ -15,6 +16,14 @@ ADAPTIVE = config["adaptive"]
 ADAPTIVE_THRESHOLDS = {threshold_label(t): float(t) for t in ADAPTIVE["thresholds"]}
 ADAPTIVE_PATHS = ADAPTIVE["paths"] or [VALIDATION_PATH]
 ADAPTIVE_RUNS = [f"{OUT}/adaptive/{label}/{p}.h5" for label in ADAPTIVE_THRESHOLDS for p in ADAPTIVE_PATHS]
+# adaptive.report: the validation path's runs join the speed figure, the tables and the mode map
+ADAPTIVE_IN_REPORT = ADAPTIVE["report"] and REFERENCE == "fem_dem"
+
+
+def adaptive_runs(path):
+    """{label: run file} of the adaptive runs of a load path, from the highest threshold to the lowest."""
+    return {f"adaptive FEM–DEM–ML, threshold {t:g}": f"{OUT}/adaptive/{label}/{path}.h5"
+            for label, t in sorted(ADAPTIVE_THRESHOLDS.items(), key=lambda item: -item[1])}
 
 
 def adaptive_depends(wc):
