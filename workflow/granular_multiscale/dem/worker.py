@@ -28,6 +28,9 @@ formulation, and rotating the cell would rotate the returned stress), as the con
 velocity gradient ``velGrad = Δε / (N dt)`` over N DEM steps,
 N = clamp(ceil(max|Δεij| / (strain_rate · dt)), min_steps, max_steps); afterwards
 ``velGrad = 0``. A zero increment returns the converged state without stepping.
+
+Snapshots: ``snapshot`` serialises every scene (to a file, or not) and re-loads it; ``reload``
+does the same to some scenes only (the DEM subset's replay, ``subset.py``).
 """
 
 from __future__ import annotations
