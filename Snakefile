@@ -13,6 +13,7 @@ include: "workflow/rules/reference.smk"
 include: "workflow/rules/dem.smk"
 include: "workflow/rules/convergence.smk"
 include: "workflow/rules/surrogate.smk"
+include: "workflow/rules/adaptive.smk"
 include: "workflow/rules/analysis.smk"
 
 

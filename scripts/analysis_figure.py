@@ -32,7 +32,11 @@ def main(sm) -> None:
         elif p.kind == "training_curves":
             products.make_training_curves(dict(zip(p.labels, sm.input.curves)), sm.output[0], settings)
         elif p.kind == "speed_vs_error":
-            products.make_speed_vs_error(sm.input.speedup, sm.input.accuracy, sm.output[0], settings)
+            products.make_speed_vs_error(sm.input.speedup, sm.input.accuracy, sm.output[0], settings,
+                                         curve=p.get("curve", []))
+        elif p.kind == "mode_map":
+            products.make_mode_map(dict(zip(p.labels, sm.input.runs)), sm.output[0], settings,
+                                   path_label=p.path_label)
         else:
             raise ValueError(f"unknown figure kind {p.kind!r}")
 

@@ -1,7 +1,8 @@
 """The package's layers: every import points down.
 
     drivers                      compose a problem with a material-point set, write runs
-      fem   materials  dem  surrogate   the solver and the material-point sets
+      fem          adaptive             the solver; the set made of the surrogate and DEM sets
+            materials  dem  surrogate   the material-point sets
         tensors, paths, history, data, ...   shared foundations
 
 The solver must not know what sits at its Gauss points, and no material-point set may
@@ -18,8 +19,10 @@ PACKAGE = Path(__file__).resolve().parents[1] / "workflow" / "granular_multiscal
 MATERIAL_SETS = ("materials", "dem", "surrogate")
 # subpackage -> subpackages it must not import
 FORBIDDEN = {
-    "fem": ("drivers", "dem", "surrogate", "analysis"),
-    **{m: ("drivers", "fem") for m in MATERIAL_SETS},
+    "fem": ("drivers", "dem", "surrogate", "adaptive", "analysis"),
+    **{m: ("drivers", "fem", "adaptive") for m in MATERIAL_SETS},
+    # the adaptive set is made of the surrogate and DEM sets: above them, still below the solver
+    "adaptive": ("drivers", "fem", "analysis"),
 }
 
 

@@ -25,3 +25,28 @@ def test_other_sphere_counts_add_their_own_packing_and_fem_dem_run(tmp_path):
                       f"{out}/fem_dem_n60/path2.h5" in line]
     assert len(speedup_inputs) == 2  # table_speedup and table_accuracy
     assert not out.exists()
+
+
+def test_adaptive_runs_join_all_only_with_adaptive_report(tmp_path):
+    """Pass criterion: by default `all` schedules no adaptive run; with adaptive.report (and the
+    thresholds given on the command line, .inf included) it schedules one per threshold on the
+    validation path, feeds them to the speedup and accuracy tables and draws the mode map."""
+    out = tmp_path / "tiny"
+    base = [SNAKEMAKE, "-n", "all", "--configfile", "config/tiny.yaml", "--config", f"output_dir={out}"]
+
+    def dry_run(*extra):
+        result = subprocess.run(base + list(extra), cwd=ROOT, capture_output=True, text=True, timeout=300)
+        assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
+        return result.stdout + result.stderr
+
+    default = dry_run()
+    assert "rule adaptive:" not in default and "adaptive_mode_map" not in default
+    output = dry_run("adaptive={report: true, thresholds: [0.02, .inf]}")
+    for label in ("t0.02", "tinf"):
+        assert f"output: {out}/adaptive/{label}/path2.h5" in output
+        assert f"{out}/adaptive/{label}/path1.h5" not in output
+    assert f"output: {out}/figures/adaptive_mode_map.png" in output
+    tables = [line for line in output.splitlines() if line.strip().startswith("input:") and
+              f"{out}/adaptive/tinf/path2.h5" in line]
+    assert len(tables) == 3  # table_speedup, table_accuracy, figure_mode_map
+    assert not out.exists()

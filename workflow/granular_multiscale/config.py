@@ -34,14 +34,14 @@ def _key(path) -> str:
 def _from_text(value: Any, schema: dict) -> Any:
     """Numbers and booleans that arrive as strings, accepted as what they are: YAML 1.1 reads
     `1e-4` (no dot, no exponent sign) as a string, and Snakemake's --config reads the values
-    nested in a mapping (`--config 'surrogate={epochs: 100, anchor_initial_state: false}'`) as
-    strings."""
+    nested in a mapping (`--config 'surrogate={epochs: 100, anchor_initial_state: false}'`, and
+    `.inf`) as strings."""
     kind = schema.get("type")
     if isinstance(value, list) and kind == "array" and isinstance(schema.get("items"), dict):
         return [_from_text(v, schema["items"]) for v in value]
     if isinstance(value, str) and kind in ("number", "integer"):
-        try:
-            return float(value) if kind == "number" else int(value)
+        try:  # YAML's infinity is .inf (adaptive.thresholds)
+            return float(value.replace(".inf", "inf")) if kind == "number" else int(value)
         except ValueError:
             return value
     if isinstance(value, str) and kind == "boolean":
@@ -116,6 +116,9 @@ def _check_consistency(config: dict) -> None:
         if not kind and name not in paths:
             raise ConfigError(f"config key 'surrogate.training_sources': unknown load path {name!r}; defined paths: "
                               f"{sorted(paths)}")
+    for name in config["adaptive"]["paths"]:
+        if name not in paths:
+            raise ConfigError(f"config key 'adaptive.paths': unknown load path {name!r}; defined paths: {sorted(paths)}")
     study = config["tolerance_study"]
     if study["path"] not in paths:
         raise ConfigError(f"config key 'tolerance_study.path': unknown path {study['path']!r}; defined paths: "

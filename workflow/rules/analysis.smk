@@ -50,7 +50,14 @@ def timing_runs(path):
         for n in ANALYSIS["fem_dem_sphere_counts"]:
             if n != config["dem"]["n_spheres"]:
                 runs[f"FEM–DEM ({n} spheres)"] = f"{OUT}/fem_dem_n{n}/{path}.h5"
+    if ADAPTIVE_IN_REPORT:
+        runs.update(adaptive_runs(path))
     return runs
+
+
+def speed_curve(path):
+    """Labels the speed-vs-error figure joins by a line: FEM–ML, the adaptive runs, the reference."""
+    return [SURROGATE_LABEL, *adaptive_runs(path), REFERENCE_LABEL] if ADAPTIVE_IN_REPORT else []
 
 
 def stress_strain_names():
@@ -252,6 +259,26 @@ rule figure_speed_vs_error:
     params:
         kind="speed_vs_error",
         settings=ANALYSIS,
+        curve=speed_curve(VALIDATION),
+    script:
+        "../../scripts/analysis_figure.py"
+
+
+rule figure_mode_map:
+    input:
+        runs=list(adaptive_runs(VALIDATION).values()),
+    output:
+        report(f"{OUT}/figures/adaptive_mode_map.png", caption="../report/mode_map.rst", category=CAT_SPECIMEN,
+               subcategory="Adaptive: DEM points"),
+    log:
+        f"{OUT}/logs/analysis/figure_mode_map.log",
+    benchmark:
+        f"{OUT}/benchmarks/analysis/figure_mode_map.tsv"
+    params:
+        kind="mode_map",
+        settings=ANALYSIS,
+        path_label=path_label(VALIDATION),
+        labels=list(adaptive_runs(VALIDATION)),
     script:
         "../../scripts/analysis_figure.py"
 
@@ -385,6 +412,8 @@ ANALYSIS_TARGETS = [
     f"{OUT}/tables/validation_by_phase.csv",
 ]
 ALL_TARGETS += ANALYSIS_TARGETS
+if ADAPTIVE_IN_REPORT:
+    ALL_TARGETS += [f"{OUT}/figures/adaptive_mode_map.png"]
 ALL_TARGETS += [f"{OUT}/figures/calibration.png", f"{OUT}/tables/calibration.csv", f"{OUT}/tables/calibration.html"]
 
 

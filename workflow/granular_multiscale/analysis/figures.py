@@ -280,11 +280,17 @@ def speed_vs_error(
     """Wall time (log axis) against error to the reference, one point per run.
 
     ``table`` has a 'label' and a 'wall_time_s' column and one column per entry of
-    ``errors`` ({column: axis label}); one panel per error measure.
+    ``errors`` ({column: axis label}); one panel per error measure. An optional 'curve' column
+    (a number, NaN off the curve) joins its rows in that order by a line: FEM–ML, the adaptive
+    runs from the highest threshold to the lowest, FEM–DEM.
     """
     fig, axes = plt.subplots(1, len(errors), figsize=figsize, squeeze=False)
     fig.subplots_adjust(left=0.09, right=0.98, bottom=0.13, top=0.88, wspace=0.25)
+    on_curve = table.dropna(subset=["curve"]).sort_values("curve") if "curve" in table else table.iloc[:0]
     for ax, (column, axis_label) in zip(axes[0], errors.items()):
+        if len(on_curve) > 1:
+            ax.plot(on_curve[column], on_curve["wall_time_s"], color="0.5", linewidth=1.0, zorder=2,
+                    label="adaptive FEM–DEM–ML, threshold from ∞ (FEM–ML) to 0 (FEM–DEM)")
         for k, row in enumerate(table.itertuples(index=False)):
             s = style(k)
             error = getattr(row, column)
@@ -309,4 +315,53 @@ def speed_vs_error(
     fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=2, frameon=False)
     fig.subplots_adjust(bottom=0.13 + 0.045 * ((len(labels) + 1) // 2))
     fig.suptitle("Speed vs error: each point one run on this machine (reference at error 0)", fontsize=10)
+    return save_figure(fig, out, dpi)
+
+
+# --------------------------------------------------------------------------------------
+# adaptive runs: which Gauss points ran DEM
+
+
+def dem_share_xz(ds: xr.Dataset, step: int) -> tuple[np.ndarray, np.ndarray]:
+    """[m, 2] the distinct (x, z) of the Gauss points and [m] the share of the points at each
+    (those behind each other along y) in DEM mode at `step`."""
+    position = ds["gp_position"].transpose("gp", "xyz").values
+    columns, where = np.unique(np.round(position[:, [0, 2]], 9), axis=0, return_inverse=True)
+    where = where.ravel()
+    mode = ds["point_mode"].transpose("step", "gp").values[step].astype(float)
+    return columns, np.bincount(where, weights=mode, minlength=len(columns)) / np.bincount(where)
+
+
+def mode_map(runs: Mapping[str, xr.Dataset], steps: list[int], out: str | Path, *, title: str,
+             figsize=(10.0, 6.0), dpi: int = 120) -> Path:
+    """One row per adaptive run, one column per load step: the Gauss points in the x–z plane,
+    coloured by the share of the points at that (x, z) (the points behind each other along y)
+    that answered from their YADE RVE at that step (``point_mode``)."""
+    labels = list(runs)
+    fig, axes = plt.subplots(len(labels), len(steps), figsize=figsize, squeeze=False, sharex=True, sharey=True)
+    height = fig.get_size_inches()[1]  # room in inches: the title above, two-line panel titles, x labels
+    fig.subplots_adjust(left=0.08, right=0.88, bottom=0.45 / height, top=1 - 0.8 / height, wspace=0.08,
+                        hspace=0.6 * len(labels) / max(height - 1.25, 0.5))
+    image = None
+    for row, label in zip(axes, labels):
+        ds = runs[label]
+        for ax, step in zip(row, steps):
+            columns, share = dem_share_xz(ds, step)
+            mode = ds["point_mode"].transpose("step", "gp").values[step]
+            image = ax.scatter(columns[:, 0], columns[:, 1], c=share, cmap="coolwarm", vmin=0.0, vmax=1.0, s=40,
+                               edgecolors="k", linewidths=0.3)
+            ax.set_title(f"{label}\nstep {step}: {int(mode.sum())} of {mode.size} in DEM", fontsize=8)
+            if "specimen_size_m" in ds.attrs:  # the whole specimen (the quarter's points sit in its corner)
+                size = np.asarray(ds.attrs["specimen_size_m"], dtype=float)
+                ax.set_xlim(0.0, size[0])
+                ax.set_ylim(0.0, size[2])
+            ax.set_aspect("equal")
+            ax.tick_params(labelsize=7)
+    for ax in axes[-1]:
+        ax.set_xlabel("x (m)", fontsize=8)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("z (m)", fontsize=8)
+    bar = fig.add_axes([0.90, 0.15, 0.015, 0.65])
+    fig.colorbar(image, cax=bar).set_label("share of the points (along y) in DEM mode", fontsize=8)
+    fig.suptitle(title, fontsize=10)
     return save_figure(fig, out, dpi)

@@ -312,10 +312,18 @@ def make_speedup_outputs(run_files: Mapping[str, str], out_csv, out_html, *, pat
     return table
 
 
-def make_speed_vs_error(speedup_csv, accuracy_csv, out, settings: Mapping) -> Path:
-    """Join the two tables on the method label; the reference gets error 0."""
+def make_speed_vs_error(speedup_csv, accuracy_csv, out, settings: Mapping, curve: Sequence[str] = ()) -> Path:
+    """The speed-vs-error figure of :func:`speed_error_table`."""
     from . import figures
 
+    merged, error_columns = speed_error_table(speedup_csv, accuracy_csv, curve)
+    return figures.speed_vs_error(merged, out, errors=error_columns, figsize=_size(settings, "speed"), dpi=_dpi(settings))
+
+
+def speed_error_table(speedup_csv, accuracy_csv, curve: Sequence[str] = ()) -> tuple[pd.DataFrame, dict]:
+    """Join the two tables on the method label; the reference gets error 0. `curve`: labels
+    joined by a line in that order (FEM–ML, the adaptive runs, FEM–DEM; absent ones skipped),
+    column 'curve' (NaN off it). Returns the table and {error column: axis label}."""
     speed = pd.read_csv(speedup_csv)
     speed = speed[speed["source"] == "this run"]
     accuracy = pd.read_csv(accuracy_csv)
@@ -328,11 +336,25 @@ def make_speed_vs_error(speedup_csv, accuracy_csv, out, settings: Mapping) -> Pa
     missing = merged[merged[list(error_columns)].isna().any(axis=1)]["method"].tolist()
     if missing:
         raise ValueError(f"no accuracy row for {missing} in {accuracy_csv}")
+    merged["curve"] = merged["method"].map({label: k for k, label in enumerate(curve)}).astype(float)
     stopped = merged["completed"].astype(str) == "no"
     merged.loc[stopped, "method"] = [f"{m} (stopped after step {n}; time and error of those steps)"
                                      for m, n in zip(merged.loc[stopped, "method"], merged.loc[stopped, "load_steps"])]
-    merged = merged.rename(columns={"method": "label"})
-    return figures.speed_vs_error(merged, out, errors=error_columns, figsize=_size(settings, "speed"), dpi=_dpi(settings))
+    return merged.rename(columns={"method": "label"}), error_columns
+
+
+def make_mode_map(files: Mapping[str, str | Path], out, settings: Mapping, *, path_label: str) -> Path:
+    """Rule figure_mode_map: which Gauss points ran DEM in each adaptive run, at the field figures'
+    steps (analysis.field_steps)."""
+    from . import figures
+
+    runs = read_runs(files)
+    n_steps = min(ds.sizes["step"] for ds in runs.values())
+    steps = selection.resolve_steps(settings.get("field_steps", [4, 16, -1]), n_steps)
+    width = float(settings.get("figure_width", 10.0))
+    return figures.mode_map(runs, steps, out, title=f"{path_label}: Gauss points answered by their YADE RVE (red) "
+                            "or by the surrogate (blue)", figsize=(width, width * (0.1 + 0.3 * len(runs))),
+                            dpi=_dpi(settings))
 
 
 COST_HEADERS = {

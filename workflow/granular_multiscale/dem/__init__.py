@@ -5,6 +5,8 @@ because ``from yade import *`` rebinds globals; nothing here imports yade at imp
 * ``worker``     RVE host process: resident scenes, fork-based trials and rollback
 * ``executors``  local process pool or Dask actors holding the hosts
 * ``material``   ``DemMaterialPointSet``: the material-point set the FEM solver calls
+* ``subset``     ``DemSubsetMaterialPointSet``: RVEs everywhere, only an active subset driven; late
+                 activation by replay (the DEM points of the adaptive set)
 * ``strain_paths``  designed strain histories of the rve_paths rule (numpy only, no YADE)
 * ``run``        what the ``rve`` rule script calls (FEM–DEM runs: ``drivers.fem_dem``)
 * ``yade_env``   one-thread YADE start-up shared by all of them

@@ -113,7 +113,7 @@ class DemMaterialPointSet(MaterialPointSet):
         self.snapshot_dir = Path(snapshot_dir) if snapshot_dir else None
         self.snapshot_interval = int(snapshot_interval)
         n_slots = max(1, min(int(n_workers), n_points))
-        self.slots = [idx for idx in np.array_split(np.arange(n_points), n_slots)]
+        self.slots = self._make_slots(n_points, n_slots)
         t0 = time.perf_counter()
         self.executor = make_executor(executor, n_slots, scheduler=dask_scheduler, client=dask_client)
         try:
@@ -157,6 +157,11 @@ class DemMaterialPointSet(MaterialPointSet):
             snapshot_interval=dem["snapshot_interval"],
             logger=logger,
         )
+
+    @staticmethod
+    def _make_slots(n_points: int, n_slots: int) -> list[np.ndarray]:
+        """The Gauss points of each host: contiguous blocks."""
+        return list(np.array_split(np.arange(n_points), n_slots))
 
     def _slot_messages(self, cmd: str, per_point: dict[str, np.ndarray] | None = None, common: dict | None = None):
         msgs = []
@@ -245,6 +250,10 @@ class DemMaterialPointSet(MaterialPointSet):
             self._trial = None
         else:  # nothing evaluated since the last commit: the step changed nothing
             self.replay.append(np.zeros((self.n_points, 6)))
+        self._close_commit(t0)
+
+    def _close_commit(self, t0: float) -> None:
+        """The end of every commit: count it, snapshot when due, close the step's accounting."""
         self.commits += 1
         self._account(time.perf_counter() - t0, None)
         if self._snapshot_due(self.commits):
@@ -294,26 +303,20 @@ class DemMaterialPointSet(MaterialPointSet):
             "snapshot_interval": self.snapshot_interval,
         }
 
-    def get_state(self) -> dict[str, Any]:
-        if self._trial is not None:
-            self.log.debug("get_state with a pending trial: the converged state is saved")
+    def _identity(self) -> dict[str, Any]:
+        """What a saved state must share with this set to be restored (see :meth:`_check_state`)."""
         return {
-            "format": STATE_FORMAT,
             "n_points": self.n_points,
-            "commits": self.commits,
             "packing_sha256": list(self.packing_sha256),
             "assignment": self.assignment.copy(),
             "settings": dict(self.settings),
             "snapshot_interval": self.snapshot_interval,
-            "base": None if self.base is None else {"step": self.base["step"], "files": list(self.base["files"])},
-            "replay": np.array(self.replay).reshape(len(self.replay), self.n_points, 6),
-            "converged_strain": self.conv_strain.copy(),
-            "converged_stress": self.conv_stress.copy(),
         }
 
-    def set_state(self, state: dict[str, Any]) -> None:
-        if not isinstance(state, dict) or state.get("format") != STATE_FORMAT:
-            raise ValueError(f"not a DEM material state (format {state.get('format') if isinstance(state, dict) else type(state)})")
+    def _check_state(self, state: dict[str, Any], fmt: str) -> None:
+        """Refuse (ValueError) a state of another format, point count, packings or DEM settings."""
+        if not isinstance(state, dict) or state.get("format") != fmt:
+            raise ValueError(f"not a {fmt} state (format {state.get('format') if isinstance(state, dict) else type(state)})")
         if state["n_points"] != self.n_points:
             raise ValueError(f"checkpoint has {state['n_points']} Gauss points, this run {self.n_points}")
         for i, (old, new) in enumerate(zip(state["packing_sha256"], self.packing_sha256)):
@@ -323,6 +326,22 @@ class DemMaterialPointSet(MaterialPointSet):
             raise ValueError("the checkpoint uses a different set of packings (dem.n_packings or seed changed)")
         if state["settings"] != self.settings:
             raise ValueError(f"DEM settings changed since the checkpoint: {state['settings']} -> {self.settings}")
+
+    def get_state(self) -> dict[str, Any]:
+        if self._trial is not None:
+            self.log.debug("get_state with a pending trial: the converged state is saved")
+        return {
+            **self._identity(),
+            "format": STATE_FORMAT,
+            "commits": self.commits,
+            "base": None if self.base is None else {"step": self.base["step"], "files": list(self.base["files"])},
+            "replay": np.array(self.replay).reshape(len(self.replay), self.n_points, 6),
+            "converged_strain": self.conv_strain.copy(),
+            "converged_stress": self.conv_stress.copy(),
+        }
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        self._check_state(state, STATE_FORMAT)
         t0 = time.perf_counter()
         self.executor.call_all(self._slot_messages("rollback"))
         self._trial = None

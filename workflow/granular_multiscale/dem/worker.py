@@ -28,6 +28,9 @@ formulation, and rotating the cell would rotate the returned stress), as the con
 velocity gradient ``velGrad = Δε / (N dt)`` over N DEM steps,
 N = clamp(ceil(max|Δεij| / (strain_rate · dt)), min_steps, max_steps); afterwards
 ``velGrad = 0``. A zero increment returns the converged state without stepping.
+
+Snapshots: ``snapshot`` serialises every scene (to a file, or not) and re-loads it; ``reload``
+does the same to some scenes only (the DEM subset's replay, ``subset.py``).
 """
 
 from __future__ import annotations
@@ -200,10 +203,23 @@ class Host:
                 pickle.dump({"gps": self.gps, "scenes": blobs}, f, protocol=pickle.HIGHEST_PROTOCOL)
             os.replace(tmp, path)
         for k, gp in enumerate(self.gps):
-            self._scene(k)
-            self.O.stringToScene(blobs[gp])
-            self._apply_settings()
+            self._reload_scene(k, blobs[gp])
         return {"time": time.perf_counter() - t0, "bytes": int(sum(len(b) for b in blobs.values()))}
+
+    def reload(self, gps: list[int]) -> dict:
+        """Serialise and re-load the scenes of ``gps`` only (what :meth:`snapshot` does to every
+        scene, without a file): the others are left as they are."""
+        t0 = time.perf_counter()
+        for gp in gps:
+            k = self.gps.index(gp)
+            self._scene(k)
+            self._reload_scene(k, self.O.sceneToString())
+        return {"time": time.perf_counter() - t0}
+
+    def _reload_scene(self, k: int, blob: bytes) -> None:
+        self._scene(k)
+        self.O.stringToScene(blob)
+        self._apply_settings()
 
     def scene_strings(self) -> dict:
         out = {}
@@ -249,6 +265,8 @@ def _handle_common(host: Host, cmd: str, args: dict):
         return result
     if cmd == "snapshot":
         return host.snapshot(args["path"])
+    if cmd == "reload":
+        return host.reload(args["gps"])
     if cmd == "scene_strings":
         return host.scene_strings()
     if cmd == "converged":

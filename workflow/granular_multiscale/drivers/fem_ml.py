@@ -58,17 +58,8 @@ def run_fem_ml(
     if path_name not in paths:
         raise KeyError(f"unknown load path {path_name!r}; config key 'load_paths' defines {sorted(paths)}")
     config = fem_ml_config(config)
-    torch.set_num_threads(int(config["surrogate"]["torch_threads"]))
     problem = TriaxialProblem.from_config(config)
-    material = SurrogateMaterial.from_files(
-        problem.n_material_points,
-        sigma_model,
-        tangent_model,
-        tangent=tangent,
-        out_of_range_tolerance=float(config["surrogate"]["out_of_range_tolerance"]),
-        logger=logger,
-        anchor_initial_state=bool(config["surrogate"]["anchor_initial_state"]),
-    )
+    material = surrogate_material(config, problem.n_material_points, sigma_model, tangent_model, tangent, logger)
     logger.info(
         "FEM–ML %s: %d Gauss points (%d material points), %s, tangent %s, NNσ %s%s (ensemble of %d); "
         "Newton tolerance %g, %d iterations",
@@ -89,17 +80,7 @@ def run_fem_ml(
             logger.error("FEM–ML %s with the %s tangent stopped: %s; keeping the converged steps 0..%d "
                          "(attribute completed = 0)", path_name, tangent, error, ds.sizes["step"] - 1)
     ds = ds.assign(spread_variables(material, ds))
-    ds.attrs["ensemble_size"] = material.ensemble_size
-    ds.attrs.update(
-        {
-            "surrogate_tangent": tangent,
-            "surrogate_use_history": int(material.use_history),
-            "surrogate_sigma_model": str(sigma_model),
-            "surrogate_tangent_model": str(tangent_model) if tangent == "nn" else "",
-            "surrogate_features": ",".join(material.feature_names),
-            "surrogate_anchor_initial_state": int(material.anchor_initial_state),
-        }
-    )
+    ds.attrs.update(surrogate_attributes(material, sigma_model, tangent_model))
     n_out = int(ds["out_of_range_points"].max()) if "out_of_range_points" in ds else 0
     if n_out:
         steps = int((ds["out_of_range_points"] > 0).sum())
@@ -108,20 +89,54 @@ def run_fem_ml(
     return ds
 
 
+def surrogate_material(config: dict, n_points: int, sigma_model, tangent_model, tangent: str,
+                       logger: logging.Logger | None = None) -> SurrogateMaterial:
+    """The networks of the model files as a material-point set, with the `surrogate` settings of the config."""
+    torch.set_num_threads(int(config["surrogate"]["torch_threads"]))
+    return SurrogateMaterial.from_files(
+        n_points,
+        sigma_model,
+        tangent_model,
+        tangent=tangent,
+        out_of_range_tolerance=float(config["surrogate"]["out_of_range_tolerance"]),
+        logger=logger,
+        anchor_initial_state=bool(config["surrogate"]["anchor_initial_state"]),
+    )
+
+
+def surrogate_attributes(material: SurrogateMaterial, sigma_model, tangent_model) -> dict:
+    """Run-file attributes that say which networks sat at the Gauss points."""
+    return {
+        "ensemble_size": material.ensemble_size,
+        "surrogate_tangent": material.tangent,
+        "surrogate_use_history": int(material.use_history),
+        "surrogate_sigma_model": str(sigma_model),
+        "surrogate_tangent_model": str(tangent_model) if material.tangent == "nn" else "",
+        "surrogate_features": ",".join(material.feature_names),
+        "surrogate_anchor_initial_state": int(material.anchor_initial_state),
+    }
+
+
+def commits_of_steps(ds: xr.Dataset, commits: int) -> np.ndarray:
+    """[steps] the number of commits a material set had made at the end of each load step of the run
+    `ds`, which made `commits` in all: 1 + ``cutbacks`` per load step (one per accepted sub-step).
+    A run that stopped early may have committed sub-steps of its failing step after the last
+    recorded step; a complete run must account for every commit."""
+    ends = np.cumsum(ds["cutbacks"].values + 1)
+    complete = int(ds.attrs.get("completed", 1)) == 1
+    if commits < ends[-1] or (complete and commits != ends[-1]):
+        raise RuntimeError(f"the material set recorded {commits} committed states, the run's "
+                           f"{ds.sizes['step']} load steps and {int(ds['cutbacks'].sum())} cutbacks make {ends[-1]}")
+    return ends
+
+
 def spread_variables(material: SurrogateMaterial, ds: xr.Dataset) -> dict[str, xr.Variable]:
     """The ensemble spread the material set recorded, one entry per load step of the run `ds`.
 
-    The set records one spread per commit, and the solver commits once per accepted (sub-)step:
-    1 + ``cutbacks`` times per load step, so load step s ended with commit
-    cumsum(1 + cutbacks)[s]. A run that stopped early may have committed sub-steps of the step
-    that failed after its last recorded step; they are left out."""
-    ends = np.cumsum(ds["cutbacks"].values + 1)
+    The set records one spread per commit; load step s ended with commit cumsum(1 + cutbacks)[s]
+    (:func:`commits_of_steps`)."""
     recorded = material.stress_spread
-    complete = int(ds.attrs.get("completed", 1)) == 1
-    if recorded.shape[0] < ends[-1] or (complete and recorded.shape[0] != ends[-1]):
-        raise RuntimeError(f"the material set recorded {recorded.shape[0]} committed states, the run's "
-                           f"{ds.sizes['step']} load steps and {int(ds['cutbacks'].sum())} cutbacks make {ends[-1]}")
-    spread = recorded[ends - 1]
+    spread = recorded[commits_of_steps(ds, recorded.shape[0]) - 1]
     n_gp = ds.sizes["gp"]
     if spread.shape[1] != n_gp:  # uniform field: the one material point stands for every Gauss point
         spread = np.broadcast_to(spread, (spread.shape[0], n_gp, 6)).copy()

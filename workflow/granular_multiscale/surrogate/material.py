@@ -278,6 +278,15 @@ class SurrogateMaterial(MaterialPointSet):
             return np.zeros((self.n_points, 6))
         return (members + self._member_offsets[:, None, :]).std(dim=0, unbiased=False).numpy().copy()
 
+    def trial_uncertainty(self) -> tuple[np.ndarray, np.ndarray]:
+        """Of the last evaluation: [n, 6] ensemble spread of NNσ (Pa, as :attr:`stress_spread` records
+        it at a commit) and [n] the largest out-of-range excess over the features (in units of the
+        training range, 0 inside it). What the adaptive set decides promotions on."""
+        if self._trial is None:
+            raise RuntimeError(f"{type(self).__name__}.trial_uncertainty() needs an evaluation first")
+        _, excess = self._trial_out_of_range
+        return self._member_spread(self._trial_members), excess.max(axis=1, initial=0.0)
+
     @property
     def stress_spread(self) -> np.ndarray:
         """[committed states, n_points, 6] the ensemble spread of NNσ at each commit so far (Pa)."""

@@ -1,0 +1,318 @@
+"""Adaptive FEM–DEM–ML (issue 14) at the tiny scale with real YADE RVEs and real (quickly trained)
+networks: the DEM subset's replay, and the adaptive set at its two ends and in between.
+
+* a replayed RVE is bit for bit the RVE that followed the same strains from step 0;
+* threshold ∞ is FEM–ML and 100 % anchors (or threshold 0) FEM–DEM, bit for bit;
+* a run killed after a few steps and started again ends with the numbers of an uninterrupted one.
+
+The networks are an ensemble of 2 NNσ trained in seconds on a synthetic material-point run of the
+elastoplastic model (as tests/test_surrogate_uncertainty.py), so they disagree with the
+100-sphere RVEs — which makes the mixed specimen a hard case for Newton, not an easy one."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+from dem_fixtures import ROOT, SETTINGS, packing, tiny_config
+
+from granular_multiscale.data import read_run
+from granular_multiscale.dem.material import DemMaterialPointSet
+from granular_multiscale.dem.subset import DemSubsetMaterialPointSet
+from granular_multiscale.drivers.adaptive import run_adaptive
+from granular_multiscale.drivers.fem_dem import dem_newton_config, run_fem_dem
+from granular_multiscale.drivers.fem_ml import run_fem_ml
+from granular_multiscale.materials.elastoplastic import Elastoplastic
+from granular_multiscale.paths import load_paths_from_config
+from granular_multiscale.surrogate.dataset import build_dataset
+from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
+from granular_multiscale.surrogate.training import train
+
+pytestmark = pytest.mark.slow
+
+
+def strain_history(n_points: int, n_commits: int, seed: int = 3) -> np.ndarray:
+    """[commits, n, 6]: commit 0 at zero strain (the consolidated state), then triaxial-like
+    increments of 1e-3 axial with a per-point lateral ratio and shear, one commit repeating the last."""
+    rng = np.random.default_rng(seed)
+    ratio = rng.uniform(0.3, 0.45, n_points)
+    shear = rng.uniform(-0.05, 0.05, (n_points, 3))
+    axial = 1e-3 * np.array([0, 1, 2, 3, 3, 2, 4][:n_commits])
+    eps = np.zeros((n_commits, n_points, 6))
+    eps[..., 0] = eps[..., 1] = ratio * axial[:, None]
+    eps[..., 2] = -axial[:, None]
+    eps[..., 3:] = shear * axial[:, None, None]
+    return eps
+
+
+def drive(dem, strains, activate: dict | None = None, detour: bool = True) -> None:
+    """Commit `strains` one after another; before commit k activate the points activate[k]; with
+    `detour`, a discarded trial elsewhere first (what Newton does)."""
+    for k, eps in enumerate(strains):
+        if activate and k in activate:
+            dem.activate(activate[k])
+        if detour:
+            dem.evaluate(0.5 * eps + 1e-4)
+        dem.evaluate(eps)
+        dem.commit(eps)
+
+
+def test_replayed_rve_is_bit_for_bit_the_rve_that_followed_the_strains(tmp_path_factory):
+    path, _ = packing(tmp_path_factory)
+    n, strains = 4, strain_history(4, 7)
+    kwargs = dict(n_workers=2, snapshot_interval=2)  # re-loads after commits 2, 4, 6: the replay must too
+    with DemMaterialPointSet(n, [path], SETTINGS, **kwargs) as fem_dem:
+        drive(fem_dem, strains, detour=False)
+        reference, initial = fem_dem.conv_stress.copy(), fem_dem.initial_stress.copy()
+        particle_steps = fem_dem.time_split()["particle_steps"]
+    assert np.abs(reference - initial).max() > 1e3  # Pa: the strains did load the RVEs
+
+    with DemSubsetMaterialPointSet(n, [path], SETTINGS, **kwargs) as late:
+        drive(late, strains)  # nothing active: no DEM at all
+        assert late.time_split()["particle_steps"] == 0 and np.array_equal(late.conv_stress, initial)
+        assert late.activate(range(n)) == n  # every point replays 7 commits at once
+        assert np.array_equal(late.conv_stress, reference)
+        # one DEM increment per commit and point: what FEM–DEM spent without detours
+        assert late._step["replay_particle_steps"] == particle_steps > 0
+
+    with DemSubsetMaterialPointSet(n, [path], SETTINGS, **kwargs) as mixed:
+        mixed.activate([1])  # an anchor: active from the start
+        drive(mixed, strains, activate={3: [0, 2]})  # promoted before commit 3 (after 3 commits)
+        assert np.array_equal(mixed.active, [True, True, True, False])
+        assert np.array_equal(mixed.conv_stress[:3], reference[:3])
+        assert np.array_equal(mixed.conv_stress[3], initial[3])  # never driven: the packing's state
+        state = mixed.get_state()
+        assert state["strain_record"].shape == (8, n, 6)
+        # resume: a fresh set replays the active points (bit for bit), and both continue alike
+        with DemSubsetMaterialPointSet(n, [path], SETTINGS, **kwargs) as resumed:
+            resumed.set_state(state)
+            assert np.array_equal(resumed.conv_stress, mixed.conv_stress)
+            last = strains[-1] + np.array([0.0003, 0.0003, -0.001, 0.0, 0.0, 0.0])
+            for dem in (mixed, resumed):
+                dem.evaluate(last)
+                dem.commit(last)
+            assert np.array_equal(resumed.conv_stress, mixed.conv_stress)
+            assert np.array_equal(resumed.strain_record[-1], last)
+
+
+# -- the adaptive set in the FEM solver --------------------------------------------------------------
+PATH = [[3, 0.003], [2, 0.0015], [3, 0.005]]  # loading, unloading, reloading: 8 steps
+STEPS = 8
+# what must not depend on how a run was made (FEM–DEM: also the DEM accounting that is not timing)
+SAME = ("strain", "stress", "tangent", "displacement", "top_force", "volumetric_strain", "newton_iterations",
+        "residual_norm", "cutbacks")
+DEM_SAME = ("particle_steps", "trials")
+
+
+def assert_same(a, b, names=SAME):
+    for name in names:
+        x, y = a[name].values, b[name].values
+        if name == "residual_norm":  # NaN-padded to the run's longest step
+            width = min(x.shape[1], y.shape[1])
+            assert np.isnan(x[:, width:]).all() and np.isnan(y[:, width:]).all()
+            x, y = x[:, :width], y[:, :width]
+        assert np.array_equal(x, y, equal_nan=True), name
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    """(config, packing paths, NNσ model file): the tiny mesh (16 Gauss points, 100-sphere RVEs) with
+    FEM–DEM's Newton settings for every run, so that FEM–ML, FEM–DEM and adaptive runs compare bit for
+    bit; an ensemble of 2 NNσ trained in seconds on the elastoplastic model."""
+    torch.set_num_threads(1)
+    folder = tmp_path_factory.mktemp("adaptive")
+    path, _ = packing(tmp_path_factory)
+    config = tiny_config(folder / "out", {"p": PATH})
+    config["newton"].update(dem_newton_config(config)["newton"])
+    config["surrogate"].update(newton={}, ensemble_size=2, epochs=150, learning_rate=5e-3, batch_size=256)
+    load_path = load_paths_from_config(config)["p"]
+    run = material_point_run(Elastoplastic.from_config(12, config), triaxial_strain_paths(load_path, 12, seed=2),
+                             load_path)
+    sigma, _, _ = train(*build_dataset(run, 0.75, seed=0), "sigma", config["surrogate"], seed=0, config=config)
+    sigma.save(folder / "sigma.pt")
+    return config, [str(path)], str(folder / "sigma.pt")
+
+
+def adaptive(setup, threshold, anchor_fraction=0.0, **kwargs):
+    config, packings, sigma = setup
+    config = {**config, "adaptive": {**config["adaptive"], "anchor_fraction": anchor_fraction}}
+    return run_adaptive(config, "p", threshold, packings, sigma, None, "autodiff", n_workers=2, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def fem_ml_run(setup):
+    config, _, sigma = setup
+    return run_fem_ml(config, "p", sigma, None, "autodiff", progress=False)
+
+
+@pytest.fixture(scope="module")
+def fem_dem_run(setup, tmp_path_factory):
+    config, packings, _ = setup
+    return run_fem_dem(config, "p", packings, str(tmp_path_factory.mktemp("fem_dem") / "p.h5"), None, 2)
+
+
+def test_threshold_infinity_is_fem_ml(setup, fem_ml_run):
+    run = adaptive(setup, np.inf)
+    assert run.sizes["step"] == STEPS + 1 and run.attrs["completed"] == 1
+    assert_same(run, fem_ml_run, SAME + ("stress_spread", "stress_spread_relative"))
+    assert not run.point_mode.values.any() and run.attrs["dem_particle_steps"] == 0
+    assert run.attrs["method"] == "adaptive" and run.attrs["adaptive_threshold"] == np.inf
+    # the indicator it records is FEM–ML's relative spread (the stress is the surrogate's everywhere)
+    np.testing.assert_array_equal(run.indicator.values, fem_ml_run.stress_spread_relative.values)
+
+
+def test_threshold_zero_and_all_anchors_are_fem_dem(setup, fem_dem_run):
+    for run in (adaptive(setup, 0.0), adaptive(setup, np.inf, anchor_fraction=1.0)):
+        assert_same(run, fem_dem_run, SAME + DEM_SAME)
+        assert run.point_mode.values.all() and run.attrs["dem_point_fraction"] == 1.0
+        # every point DEM from the first evaluation on: nothing to replay
+        assert run.attrs["dem_replay_particle_steps"] == 0
+        assert run.attrs["dem_particle_steps"] == fem_dem_run.attrs["dem_particle_steps"] > 0
+    assert run.attrs["adaptive_anchors"] == 16 and int(run.promotions.sum()) == 0
+
+
+RUNNER = """
+import pickle, sys
+from granular_multiscale.drivers.adaptive import run_adaptive
+from granular_multiscale.runlog import setup_logging
+config, threshold, packings, sigma, output, checkpoint = pickle.load(open(sys.argv[1], "rb"))
+run_adaptive(config, "p", threshold, packings, sigma, None, "autodiff", output, checkpoint, 2, setup_logging(None))
+"""
+
+
+@pytest.fixture(scope="module")
+def between(setup, fem_ml_run, tmp_path_factory):
+    """(threshold, run): FEM–ML's spread grows from step 1 to step 3 (1 % at most at step 1, 3 % at
+    step 3; the networks are rough): a threshold in between promotes nobody at step 1, somebody by
+    step 3. The run keeps a checkpoint (removed at the end)."""
+    indicator = fem_ml_run.stress_spread_relative.values
+    threshold = float(0.5 * (indicator[1].max() + indicator[3].max()))
+    checkpoint = tmp_path_factory.mktemp("between") / "full.ckpt"
+    run = adaptive(setup, threshold, checkpoint=checkpoint)
+    assert not checkpoint.exists()  # removed after success
+    return threshold, run
+
+
+def test_promotions_and_resume_after_kill(setup, between, fem_ml_run, fem_dem_run, tmp_path):
+    """At the threshold between: the points whose spread reaches it go DEM (replaying their history),
+    the others stay surrogate; killed after the first promotion and started again, the run ends with
+    the numbers of the uninterrupted run."""
+    threshold, run = between
+    mode = run.point_mode.values
+    first = int(np.flatnonzero(mode.any(axis=1))[0])
+    assert 2 <= first <= 3 and 0 < mode[-1].sum() < 16, mode.sum(axis=1)
+    assert np.all(np.diff(mode, axis=0) >= 0)  # DEM once promoted
+    assert np.array_equal(run.dem_points.values, mode.sum(axis=1))
+    assert np.array_equal(run.promotions.values, np.diff(mode.sum(axis=1), prepend=0))
+    # the converged state of every step: each surrogate point's indicator is below the threshold
+    assert np.all(run.indicator.values[mode == 0] < threshold)
+    # a promoted point replayed its history (one DEM increment per past commit); before it, FEM–ML exactly
+    promoted = run.promotions.values > 0
+    assert np.all(run.replay_particle_steps.values[promoted] > 0) and np.all(run.replay_particle_steps[~promoted] == 0)
+    assert run.attrs["dem_replay_particle_steps"] == run.replay_particle_steps.sum()
+    # DEM ran at the DEM points only: trials and replays together cost less than FEM–DEM at all 16
+    assert 0 < run.attrs["dem_particle_steps"] < 0.9 * fem_dem_run.attrs["dem_particle_steps"]
+    assert_same(run.isel(step=slice(0, first)), fem_ml_run.isel(step=slice(0, first)))
+    assert not np.array_equal(run.stress.values[first:], fem_ml_run.stress.values[first:])
+
+    config, packings, sigma = setup
+    checkpoint, output = tmp_path / "killed.ckpt", tmp_path / "killed.h5"
+    args = tmp_path / "args.pkl"
+    args.write_bytes(pickle.dumps((config, threshold, packings, sigma, str(output), str(checkpoint))))
+
+    def start():
+        return subprocess.Popen([sys.executable, "-c", RUNNER, str(args)], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+    proc, step, deadline = start(), -1, time.time() + 300
+    while time.time() < deadline and proc.poll() is None and step < first + 1:
+        try:
+            step = pickle.loads(checkpoint.read_bytes())["step"]
+        except Exception:
+            pass
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert first + 1 <= step < STEPS and not output.exists(), proc.stderr.read()[-2000:]
+    again = start()
+    _, err = again.communicate(timeout=300)
+    assert again.returncode == 0, err[-3000:]
+    assert f"resuming from checkpoint {checkpoint} after step {step}" in err
+    assert "DEM subset resumed" in err and "differ from the checkpoint" not in err
+    resumed = read_run(output)
+    assert_same(resumed, run, SAME + ("point_mode", "indicator", "promotions", "particle_steps",
+                                      "replay_particle_steps", "stress_spread"))
+
+
+def test_rule_writes_the_run_its_log_and_benchmark(setup, between, tmp_path):
+    """`snakemake <out>/adaptive/t<threshold>/p.h5` with the packing and networks in place (only the
+    rule adaptive may run): the run of the driver, with the threshold from adaptive.thresholds."""
+    config, packings, sigma = setup
+    threshold, run = between
+    out = tmp_path / "out"
+    for source, target in ((packings[0], out / "rve" / "packing_0.yade.gz"), (sigma, out / "models" / "nn_sigma.pt"),
+                           (sigma, out / "models" / "nn_tangent.pt")):  # the autodiff tangent reads no ND
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(open(source, "rb").read())
+    config = {**config, "output_dir": str(out), "adaptive": {**config["adaptive"], "thresholds": [threshold, 0.5]},
+              "surrogate": {**config["surrogate"], "tangent": "autodiff"}}
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+    target = out / "adaptive" / f"t{threshold:g}" / "p.h5"
+    snakemake = Path(sys.executable).with_name("snakemake")
+    result = subprocess.run([str(snakemake), "-j2", "--configfile", str(tmp_path / "config.yaml"), "--allowed-rules",
+                             "adaptive", "--", str(target)], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    written = read_run(target)
+    assert written.attrs["adaptive_threshold"] == threshold
+    assert_same(written, run, SAME + ("point_mode", "promotions", "replay_particle_steps"))
+    log = (out / "logs" / "adaptive" / f"t{threshold:g}" / "p.log").read_text()
+    assert "promoted to DEM" in log and "particle-steps (trials" in log
+    assert (out / "benchmarks" / "adaptive" / f"t{threshold:g}" / "p.tsv").exists()
+
+
+def test_report_rows_curve_and_mode_map(setup, between, fem_ml_run, fem_dem_run, tmp_path):
+    """With adaptive.report the adaptive runs are rows of the speedup and accuracy tables, a curve
+    from FEM–ML to FEM–DEM in the speed-vs-error figure, and the mode map: here from the real runs."""
+    from granular_multiscale.analysis import figures, products
+    from granular_multiscale.data import write_run
+    from granular_multiscale.surrogate.dataset import build_dataset_from_sources, write_dataset
+
+    config, _, _ = setup
+    threshold, run = between
+    labels = {"FEM–DEM": fem_dem_run, "FEM–ML": fem_ml_run, f"adaptive FEM–DEM–ML, threshold {threshold:g}": run}
+    files = {label: str(write_run(ds, tmp_path / f"run{k}.h5")) for k, (label, ds) in enumerate(labels.items())}
+    train, heldout = build_dataset_from_sources([(files["FEM–DEM"], fem_dem_run)], 0.75, 0,
+                                                split=config["surrogate"]["split"],
+                                                history_tolerance=config["surrogate"]["history_tolerance"])
+    write_dataset(train, tmp_path / "train.h5")
+    write_dataset(heldout, tmp_path / "heldout.h5")
+    speed = products.make_speedup_outputs(files, tmp_path / "speedup.csv", tmp_path / "speedup.html", path_label="P",
+                                          paper_reference=config["analysis"]["paper_reference"], machine="here")
+    accuracy = products.make_accuracy_table(files, tmp_path / "train.h5", tmp_path / "heldout.h5",
+                                            tmp_path / "accuracy.csv", tmp_path / "accuracy.html", path_label="P")
+    adaptive_label = list(labels)[2]
+    assert adaptive_label in speed["method"].tolist()
+    errors = accuracy.set_index("method")["top_force_max_rel_pct"]
+    # DEM at 8 of 16 points takes most of the way from FEM–ML's error to FEM–DEM's 0
+    assert errors[adaptive_label] < 0.5 * errors["FEM–ML"]
+    curve = ["FEM–ML", adaptive_label, "FEM–DEM"]
+    table, _ = products.speed_error_table(tmp_path / "speedup.csv", tmp_path / "accuracy.csv", curve)
+    assert table.set_index("label")["curve"].to_dict() == {"FEM–DEM": 2.0, "FEM–ML": 0.0, adaptive_label: 1.0}
+    settings = {**config["analysis"], "field_steps": [2, 4, -1]}
+    products.make_speed_vs_error(tmp_path / "speedup.csv", tmp_path / "accuracy.csv", tmp_path / "speed.png",
+                                 settings, curve=curve)
+    products.make_mode_map({adaptive_label: files[adaptive_label]}, tmp_path / "modes.png", settings, path_label="P")
+    for png in ("speed.png", "modes.png"):
+        assert (tmp_path / png).stat().st_size > 10_000
+    # the map's colour: the DEM share of the points at each (x, z), 2 behind each other on this mesh
+    columns, share = figures.dem_share_xz(run, STEPS)
+    assert len(columns) == 8 and np.isclose(2 * share.sum(), run.point_mode.values[STEPS].sum())

@@ -1,0 +1,167 @@
+"""Adaptive FEM–DEM–ML runs: the triaxial solver with :class:`AdaptiveMaterialPointSet` at the
+Gauss points (the surrogate where it is sure, a YADE RVE where it is not; ``adaptive/material.py``).
+
+    run_adaptive(config, path_name, threshold, packing_paths, sigma_model, tangent_model, tangent,
+                 output, checkpoint, n_workers, logger)
+
+Settings: the section ``adaptive`` (indicator, out_of_range_weight, anchor_fraction; the threshold is
+an argument, one run per entry of ``adaptive.thresholds``), the RVEs and DEM settings of ``dem``, the
+networks and ``surrogate`` settings of FEM–ML. Newton: FEM–DEM's (``newton`` with the ``dem.newton``
+overrides, :func:`dem_newton_config`): the answers that matter are DEM answers, noisy at the level
+FEM–DEM's tolerance was chosen for. With those settings threshold ∞ is the FEM–ML run and
+threshold 0 (or ``anchor_fraction`` 1) the FEM–DEM run, bit for bit (tests/test_adaptive.py).
+
+The run file is in the data contract, with FEM–DEM's per-step DEM time split, FEM–ML's
+``stress_spread``/``stress_spread_relative`` (the surrogate answers at every point; relative to the
+run's stress, DEM where the point is DEM) and (:func:`adaptive_variables`):
+
+* ``point_mode(step, gp)``: 1 where the point answered from its RVE at the step's converged state;
+* ``indicator(step, gp)``: the promotion indicator at the converged strain (what was compared with
+  the threshold);
+* per load step, summed over its commits (cut-back sub-steps included): ``promotions``,
+  ``particle_steps`` (DEM trials), ``replay_particle_steps``, ``replay_time``, the time split;
+  ``dem_points`` at its end;
+* attributes ``adaptive_threshold``, ``adaptive_indicator``, ``adaptive_out_of_range_weight``,
+  ``adaptive_anchor_fraction``, ``adaptive_anchors``, ``dem_particle_steps`` (trials + replays, what
+  compares with FEM–DEM's ``dem_particle_steps``), ``dem_trial_particle_steps``,
+  ``dem_replay_particle_steps``, ``dem_point_fraction`` (DEM points / points, mean over the steps)
+  and ``dem_points_final``.
+
+Checkpoint: that of every FEM run (``TriaxialProblem.run``), holding the set's state; the DEM
+points resume by replay, bit for bit.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from ..adaptive.material import AdaptiveMaterialPointSet, anchor_points
+from ..data import write_run
+from ..dem.subset import DemSubsetMaterialPointSet
+from ..fem.newton import ConvergenceError
+from ..fem.triaxial import TriaxialProblem
+from ..paths import load_paths_from_config
+from .fem_dem import dem_newton_config
+from .fem_ml import commits_of_steps, spread_variables, surrogate_attributes, surrogate_material
+
+# per-step values of the set's commit log that are not sums over the commits of a load step
+LAST_OF_STEP = ("dem_points", "out_of_range_points", "out_of_range_excess")
+MAX_OF_STEP = ("dem_steps_max",)
+
+
+def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: list[str],
+                 sigma_model: str | Path, tangent_model: str | Path | None, tangent: str,
+                 output: str | Path | None = None, checkpoint: str | Path | None = None,
+                 n_workers: int | None = None, logger: logging.Logger | None = None,
+                 allow_partial: bool = False, dask_client=None) -> xr.Dataset:
+    """One adaptive run of load path `path_name` at `threshold` (validated config); returns the run
+    Dataset and writes it to `output` (if given). A step that does not converge raises
+    ConvergenceError, or with `allow_partial` keeps the converged steps (``completed = 0``)."""
+    logger = logger or logging.getLogger("granular_multiscale.drivers.adaptive")
+    cfg = dem_newton_config(config)
+    paths = load_paths_from_config(cfg)
+    if path_name not in paths:
+        raise KeyError(f"unknown load path {path_name!r}; config key 'load_paths' defines {sorted(paths)}")
+    section = cfg["adaptive"]
+    problem = TriaxialProblem.from_config(cfg)
+    n = problem.n_material_points
+    workers = int(n_workers or cfg["dem"]["n_workers"])
+    anchors = anchor_points(n, float(section["anchor_fraction"]), int(cfg["seed"]))
+    t0 = time.perf_counter()
+    surrogate = surrogate_material(cfg, n, sigma_model, tangent_model, tangent, logger)
+    if section["indicator"] == "spread" and surrogate.ensemble_size == 1 and 0 < threshold < np.inf:
+        raise ValueError(f"config key 'adaptive.indicator': 'spread' needs an ensemble (surrogate.ensemble_size >= 2); "
+                         f"the one network of {sigma_model} has no spread and would never promote a point")
+    dem = DemSubsetMaterialPointSet.from_config(cfg, n, packing_paths, n_workers=workers, logger=logger,
+                                                dask_client=dask_client)
+    material = AdaptiveMaterialPointSet(surrogate, dem, threshold, problem.confining_pressure,
+                                        section["indicator"], float(section["out_of_range_weight"]), anchors, logger)
+    startup = time.perf_counter() - t0
+    logger.info(
+        "adaptive FEM–DEM–ML %s: %d steps, %d material points, threshold %g on indicator %s, %d anchors; NNσ %s "
+        "(ensemble of %d, %s tangent); RVEs of %d spheres on %d %s workers (ready in %.1f s); Newton tolerance %.1e",
+        path_name, paths[path_name].n_steps, n, threshold, section["indicator"], anchors.size, sigma_model,
+        surrogate.ensemble_size, tangent, cfg["dem"]["n_spheres"], workers, cfg["dem"]["executor"], startup,
+        cfg["newton"]["tolerance"],
+    )
+    with material:
+        try:
+            ds = problem.run(material, paths[path_name], method=material.method, checkpoint=checkpoint,
+                             logger=logger, progress=True)
+            ds.attrs["completed"] = 1
+        except ConvergenceError as error:
+            if not allow_partial or error.partial is None:
+                raise
+            ds = error.partial
+            ds.attrs["completed"] = 0
+            logger.error("adaptive %s at threshold %g stopped: %s; keeping the converged steps 0..%d (attribute "
+                         "completed = 0)", path_name, threshold, error, ds.sizes["step"] - 1)
+    ds = ds.assign(spread_variables(surrogate, ds))
+    ds = ds.assign(adaptive_variables(material, ds))
+    ds.attrs.update(surrogate_attributes(surrogate, sigma_model, tangent_model))
+    trial, replay = float(ds["particle_steps"].sum()), float(ds["replay_particle_steps"].sum())
+    ds.attrs.update({
+        "adaptive_threshold": float(threshold),
+        "adaptive_indicator": section["indicator"],
+        "adaptive_out_of_range_weight": float(section["out_of_range_weight"]),
+        "adaptive_anchor_fraction": float(section["anchor_fraction"]),
+        "adaptive_anchors": anchors.size,
+        "dem_particle_steps": trial + replay,
+        "dem_trial_particle_steps": trial,
+        "dem_replay_particle_steps": replay,
+        "dem_time_s": float(ds["dem_time"].sum() + ds["replay_dem_time"].sum()),
+        "dem_point_fraction": float(ds["point_mode"].mean()),
+        "dem_points_final": int(ds["dem_points"][-1]),
+        "dem_startup_time_s": startup,
+        "dem_n_workers": workers,
+        "dem_executor": cfg["dem"]["executor"],
+    })
+    logger.info(
+        "adaptive %s at threshold %g: %d of %d points in DEM at the end (%.1f %% of point-steps), %.3g DEM "
+        "particle-steps (trials %.3g + replays %.3g), wall %.1f s", path_name, threshold, int(ds["dem_points"][-1]),
+        n, 100 * ds.attrs["dem_point_fraction"], trial + replay, trial, replay, float(ds.attrs["time_run_s"]),
+    )
+    if output is not None:
+        write_run(ds, output, config)
+        logger.info("wrote %s", output)
+    return ds
+
+
+def adaptive_variables(material: AdaptiveMaterialPointSet, ds: xr.Dataset) -> dict[str, xr.Variable]:
+    """Per load step of `ds`, from what the set recorded per commit: point_mode and indicator at the
+    step's last commit, and the step_info values over all its commits (see the module docstring)."""
+    ends = commits_of_steps(ds, material.commits)
+    starts = np.concatenate([[0], ends[:-1]])
+    mode = material.point_mode()[ends - 1]
+    indicator = np.asarray(material.indicator_log)[ends - 1]
+    n_gp = ds.sizes["gp"]
+    if mode.shape[1] != n_gp:  # uniform field: the one material point stands for every Gauss point
+        mode = np.broadcast_to(mode, (mode.shape[0], n_gp)).copy()
+        indicator = np.broadcast_to(indicator, (indicator.shape[0], n_gp)).copy()
+    out = {
+        "point_mode": xr.Variable(("step", "gp"), mode.astype(np.int8), {
+            "units": "1", "description": "1: the point answered from its YADE RVE at the converged state of the "
+                                         "step, 0: from the surrogate (ensemble mean)"}),
+        "indicator": xr.Variable(("step", "gp"), indicator, {
+            "units": "1", "indicator": material.indicator, "threshold": material.threshold,
+            "description": f"promotion indicator '{material.indicator}' of the surrogate at the converged strain; "
+                           "a surrogate point is promoted to DEM when it reaches the threshold"}),
+    }
+    log = material.commit_log
+    for key in log[0] if log else ():
+        values = np.array([d.get(key, 0.0) for d in log], dtype=float)
+        if key in LAST_OF_STEP:
+            per_step = values[ends - 1]
+        elif key in MAX_OF_STEP:
+            per_step = np.array([values[a:b].max() for a, b in zip(starts, ends)])
+        else:
+            per_step = np.array([values[a:b].sum() for a, b in zip(starts, ends)])
+        how = "at the end of" if key in LAST_OF_STEP else "largest over" if key in MAX_OF_STEP else "sum over"
+        out[key] = xr.Variable(("step",), per_step, {"description": f"adaptive set '{key}', {how} the load step's "
+                                                                    "commits (cut-back sub-steps included)"})
+    return out
