@@ -285,15 +285,18 @@ rule figure_mode_map:
 
 def surrogate_cost_items():
     """(what, how to read it, file) of each step that makes the surrogate the FEM–ML runs use:
-    the RVE packings (DEM), the reference run of the training path, the dataset and the two
-    networks of rule fem_ml (the no-history ablation is not part of the answer)."""
-    training = config["training_path"]
+    the RVE packings (DEM), every training source (the reference runs of the training paths, the
+    RVE-path sets), the dataset and the two networks of rule fem_ml (the no-history ablation is not
+    part of the answer)."""
     reference = "FEM–DEM" if REFERENCE == "fem_dem" else "elastoplastic model (stands in for FEM–DEM)"
     items = []
     if REFERENCE == "fem_dem":
         items.append(("RVE preparation (YADE packings)", "rve_summary", f"{OUT}/rve/summary.json"))
+    items += [(f"reference run of {path_label(path)}, {reference} (training data)", "run", reference_run(path))
+              for path in TRAINING_RUN_PATHS]
+    items += [(f"RVE paths '{name}' (rule rve_paths, training data)", "benchmark", f"{OUT}/benchmarks/rve_paths/{name}.tsv")
+              for name in TRAINING_RVE_SETS]
     items += [
-        (f"reference run of {path_label(training)}, {reference} (training data)", "run", reference_run(training)),
         ("dataset (rule dataset)", "benchmark", f"{OUT}/benchmarks/surrogate/dataset.tsv"),
         ("training NNσ (rule train_sigma)", "benchmark", f"{OUT}/benchmarks/surrogate/train_sigma.tsv"),
         ("training ND (rule train_tangent)", "benchmark", f"{OUT}/benchmarks/surrogate/train_tangent.tsv"),
