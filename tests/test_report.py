@@ -158,9 +158,11 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     expected = {"reference run of Path1": tables.run_wall_time(training_run)}
     if reference == "dem":
         expected["RVE preparation"] = tables.rve_preparation_seconds(out / "rve" / "summary.json")
+    # the RVE paths are a training source (config/tiny.yaml): their rule's wall time counts too
+    expected["RVE paths 'designed'"] = tables.benchmark_seconds(out / "benchmarks" / "rve_paths" / "designed.tsv")
     for network in ("dataset", "train_sigma", "train_tangent"):
         expected[network] = tables.benchmark_seconds(out / "benchmarks" / "surrogate" / f"{network}.tsv")
-    assert len(items) == len(expected) == (5 if reference == "dem" else 4)
+    assert len(items) == len(expected) == (6 if reference == "dem" else 5)
     for key, seconds in expected.items():
         matching = [label for label in items.index if label.startswith(key) or f"rule {key})" in label]
         assert len(matching) == 1, (key, list(items.index))
