@@ -69,6 +69,7 @@ def test_rule_at_the_tiny_scale(tmp_path):
         "output_dir": str(out),
         "load_paths": {"p": {"segments": [[4, 0.004], [2, 0.002], [4, 0.006]]}},
         "training_path": "p", "validation_path": "p",
+        "surrogate": {"training_sources": ["p"]},  # config/tiny.yaml's name path1, not defined here
         "dem": {"n_spheres": 100},
         "tolerance_study": {
             "path": "p", "converged": "tight", "baseline": "plain",
