@@ -43,11 +43,10 @@ import xarray as xr
 from ..adaptive.material import AdaptiveMaterialPointSet, anchor_points
 from ..data import write_run
 from ..dem.subset import DemSubsetMaterialPointSet
-from ..fem.newton import ConvergenceError
 from ..fem.triaxial import TriaxialProblem
 from ..paths import load_paths_from_config
 from .fem_dem import dem_newton_config
-from .fem_ml import commits_of_steps, spread_variables, surrogate_attributes, surrogate_material
+from .fem_ml import commits_of_steps, run_keeping_partial, spread_variables, surrogate_attributes, surrogate_material
 
 # per-step values of the set's commit log that are not sums over the commits of a load step
 LAST_OF_STEP = ("dem_points", "out_of_range_points", "out_of_range_excess")
@@ -90,17 +89,8 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
         cfg["newton"]["tolerance"],
     )
     with material:
-        try:
-            ds = problem.run(material, paths[path_name], method=material.method, checkpoint=checkpoint,
-                             logger=logger, progress=True)
-            ds.attrs["completed"] = 1
-        except ConvergenceError as error:
-            if not allow_partial or error.partial is None:
-                raise
-            ds = error.partial
-            ds.attrs["completed"] = 0
-            logger.error("adaptive %s at threshold %g stopped: %s; keeping the converged steps 0..%d (attribute "
-                         "completed = 0)", path_name, threshold, error, ds.sizes["step"] - 1)
+        ds = run_keeping_partial(problem, material, paths[path_name], checkpoint, logger, True, allow_partial,
+                                 f"adaptive {path_name} at threshold {threshold:g}")
     ds = ds.assign(spread_variables(surrogate, ds))
     ds = ds.assign(adaptive_variables(material, ds))
     ds.attrs.update(surrogate_attributes(surrogate, sigma_model, tangent_model))

@@ -68,17 +68,8 @@ def run_fem_ml(
         config["newton"]["tolerance"], config["newton"]["max_iterations"],
     )
     with material:
-        try:
-            ds = problem.run(material, paths[path_name], method=material.method, checkpoint=checkpoint,
-                             logger=logger, progress=progress)
-            ds.attrs["completed"] = 1
-        except ConvergenceError as error:
-            if not allow_partial or error.partial is None:
-                raise
-            ds = error.partial
-            ds.attrs["completed"] = 0
-            logger.error("FEM–ML %s with the %s tangent stopped: %s; keeping the converged steps 0..%d "
-                         "(attribute completed = 0)", path_name, tangent, error, ds.sizes["step"] - 1)
+        ds = run_keeping_partial(problem, material, paths[path_name], checkpoint, logger, progress, allow_partial,
+                                 f"FEM–ML {path_name} with the {tangent} tangent")
     ds = ds.assign(spread_variables(material, ds))
     ds.attrs.update(surrogate_attributes(material, sigma_model, tangent_model))
     n_out = int(ds["out_of_range_points"].max()) if "out_of_range_points" in ds else 0
@@ -128,6 +119,24 @@ def commits_of_steps(ds: xr.Dataset, commits: int) -> np.ndarray:
         raise RuntimeError(f"the material set recorded {commits} committed states, the run's "
                            f"{ds.sizes['step']} load steps and {int(ds['cutbacks'].sum())} cutbacks make {ends[-1]}")
     return ends
+
+
+def run_keeping_partial(problem, material, load_path, checkpoint, logger, progress: bool, allow_partial: bool,
+                        what: str) -> xr.Dataset:
+    """``problem.run`` with attr ``completed`` = 1; a step that does not converge raises, or with
+    ``allow_partial`` returns the converged steps (``completed`` = 0, the error logged)."""
+    try:
+        ds = problem.run(material, load_path, method=material.method, checkpoint=checkpoint, logger=logger,
+                         progress=progress)
+        ds.attrs["completed"] = 1
+    except ConvergenceError as error:
+        if not allow_partial or error.partial is None:
+            raise
+        ds = error.partial
+        ds.attrs["completed"] = 0
+        logger.error("%s stopped: %s; keeping the converged steps 0..%d (attribute completed = 0)", what, error,
+                     ds.sizes["step"] - 1)
+    return ds
 
 
 def spread_variables(material: SurrogateMaterial, ds: xr.Dataset) -> dict[str, xr.Variable]:

@@ -38,6 +38,7 @@ from ..materials import make_material
 from ..fem.triaxial import _load_checkpoint, _save_checkpoint  # the atomic pickle every run's checkpoint uses
 from ..history import HIST, history_from_sequence
 from ..tensors import COMP, TCOMP, tangent_to_upper
+from .fem_dem import checkpoint_and_scenes
 
 CHECKPOINT_FORMAT = "rve-paths-checkpoint-v1"
 
@@ -80,12 +81,7 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
     n_traj, n_steps = paths.n_trajectories, paths.n_steps
     pressure = float(config["specimen"]["confining_pressure"])
     criterion = config["rve_paths"]["contact_loss"]
-    scenes_dir = None
-    if checkpoint:
-        checkpoint = Path(checkpoint)
-        scenes_dir = checkpoint.with_name(checkpoint.name + ".scenes")
-        if not checkpoint.exists() and scenes_dir.exists():
-            shutil.rmtree(scenes_dir)  # snapshots of an older, finished or abandoned run
+    checkpoint, scenes_dir = checkpoint_and_scenes(checkpoint)
     counts = ", ".join(f"{(paths.family == f).sum()} {f}" for f in dict.fromkeys(paths.family))
     logger.info("RVE paths %s: %d trajectories (%s) x %d steps = %d RVE evaluations of %d spheres, largest "
                 "increment %.3g, %s executor with %d workers", set_name, n_traj, counts, n_steps, n_traj * n_steps,
