@@ -31,11 +31,11 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from .. import checkpoint as checkpoints
 from ..data import RVE_PATHS_VARIABLES, write_run
 from ..dem.material import DemMaterialPointSet
 from ..dem.strain_paths import STRESS_CONTROLLED, StrainPaths, lateral_servo, set_definition, strain_paths_from_config
 from ..materials import make_material
-from ..fem.triaxial import _load_checkpoint, _save_checkpoint  # the atomic pickle every run's checkpoint uses
 from ..history import HIST, history_from_sequence
 from ..tensors import COMP, TCOMP, tangent_to_upper
 from .fem_dem import checkpoint_and_scenes
@@ -100,24 +100,12 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
                    "particle_steps": [0.0], "dem_time": [0.0], "dem_cpu_time": [0.0], "wall_time": [0.0]}
         lost = np.full(n_traj, -1)
         first, elapsed_before = 1, 0.0
-        if checkpoint is not None and checkpoint.exists():
-            saved = _load_checkpoint(checkpoint)
-            reason = None
-            if saved is None or saved.get("signature") != signature:
-                reason = "it belongs to another run (or is unreadable)"
-            else:
-                try:
-                    material.set_state(saved["material_state"])
-                except (ValueError, FileNotFoundError) as error:
-                    reason = f"the DEM set cannot resume it ({error})"
-            if reason is None:
-                records, lost, elapsed_before = saved["records"], saved["lost"], saved["elapsed"]
-                first = saved["step"] + 1
-                logger.info("resuming from checkpoint %s after step %d (%.1f s of steps done)", checkpoint,
-                            saved["step"], elapsed_before)
-            else:
-                checkpoint.unlink(missing_ok=True)
-                logger.warning("checkpoint %s set aside: %s; starting afresh", checkpoint, reason)
+        saved = checkpoints.resume(checkpoint, signature, material, logger)
+        if saved is not None:
+            records, lost, elapsed_before = saved["records"], saved["lost"], saved["elapsed"]
+            first = saved["step"] + 1
+            logger.info("resuming from checkpoint %s after step %d (%.1f s of steps done)", checkpoint,
+                        saved["step"], elapsed_before)
         if first == 1:
             _report_contact_loss(records["stress"][0], records["tangent"][0], 0, lost, paths, pressure, criterion,
                                  logger)
@@ -145,7 +133,7 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
             _report_contact_loss(stress, tangent, step, lost, paths, pressure, criterion, logger)
             elapsed = elapsed_before + time.perf_counter() - t_run
             if checkpoint is not None:
-                _save_checkpoint(checkpoint, {"signature": signature, "step": step, "records": records, "lost": lost,
+                checkpoints.save(checkpoint, {"signature": signature, "step": step, "records": records, "lost": lost,
                                               "material_state": material.get_state(), "elapsed": elapsed})
             logger.info("step %3d/%d  %.3g particle-steps  %.2f s  (%.0f s so far, about %.0f s to go)  "
                         "lost contact: %d",

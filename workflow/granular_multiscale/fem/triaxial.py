@@ -49,14 +49,13 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import pickle
 import time
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
-from ..atomic import atomic_path
+from .. import checkpoint as checkpoints
 from ..data import tangent_variables
 from ..history import HIST, history_from_sequence
 from ..materials.wrappers import TangentRepair, UniformField
@@ -310,28 +309,16 @@ class TriaxialProblem:
         timers = Timers()
         elapsed_before = 0.0  # load-step time of the steps a resumed run takes from its checkpoint
         resume_time = 0.0
-        if checkpoint is not None and checkpoint.exists():
-            t0 = time.perf_counter()
-            saved = _load_checkpoint(checkpoint)
-            reason = None
-            if saved is None or saved.get("signature") != signature:
-                reason = "it belongs to another run (or is unreadable)"
-            else:
-                try:
-                    material.set_state(saved["material_state"])
-                except (ValueError, FileNotFoundError) as error:  # the set refuses a state it cannot continue
-                    reason = f"the material set cannot resume it ({error})"
-            if reason is None:
-                records, u, previous = saved["records"], saved["u"], saved["previous"]
-                timers = Timers(**saved["timers"])
-                elapsed_before = float(saved["elapsed"])
-                first = saved["step"] + 1
-                resume_time = time.perf_counter() - t0
-                logger.info("resuming from checkpoint %s after step %d (%.1f s of load steps done; resume took "
-                            "%.1f s)", checkpoint, saved["step"], elapsed_before, resume_time)
-            else:
-                checkpoint.unlink(missing_ok=True)
-                logger.warning("checkpoint %s set aside: %s; starting afresh", checkpoint, reason)
+        t0 = time.perf_counter()
+        saved = checkpoints.resume(checkpoint, signature, material, logger)
+        if saved is not None:
+            records, u, previous = saved["records"], saved["u"], saved["previous"]
+            timers = Timers(**saved["timers"])
+            elapsed_before = float(saved["elapsed"])
+            first = saved["step"] + 1
+            resume_time = time.perf_counter() - t0
+            logger.info("resuming from checkpoint %s after step %d (%.1f s of load steps done; resume took "
+                        "%.1f s)", checkpoint, saved["step"], elapsed_before, resume_time)
 
         t_run = time.perf_counter()
 
@@ -371,7 +358,7 @@ class TriaxialProblem:
             records["wall_time"].append(wall)
             records["step_info"].append(dict(info))
             if checkpoint is not None:
-                _save_checkpoint(checkpoint, {
+                checkpoints.save(checkpoint, {
                     "signature": signature, "step": step, "records": records, "u": u,
                     "previous": previous, "material_state": material.get_state(),
                     "timers": timers.as_dict(), "elapsed": elapsed(),
@@ -489,17 +476,3 @@ class TriaxialProblem:
                 "gauss_points_per_element": POINTS_PER_ELEMENT,
             },
         )
-
-
-def _save_checkpoint(path: Path, payload: dict) -> None:
-    """Pickle atomically (temporary file + rename): a kill mid-write keeps the previous checkpoint."""
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        pickle.dump(payload, f, protocol=pickle.HIGHEST_PROTOCOL)
-
-
-def _load_checkpoint(path: Path) -> dict | None:
-    try:
-        with open(path, "rb") as f:
-            return pickle.load(f)
-    except Exception:
-        return None

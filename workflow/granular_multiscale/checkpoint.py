@@ -1,0 +1,52 @@
+"""Checkpoints of long runs: an atomic pickle per run, resumed only by the run it belongs to.
+
+    save(path, payload)                          temporary file + rename: a kill keeps the last one
+    resume(path, signature, material, logger)    the saved payload, or None (and the file set aside)
+
+The FEM solver (``fem.triaxial``) and the RVE-path driver (``drivers.rve_paths``) checkpoint
+after every step this way; the payload holds ``signature`` and ``material_state``.
+"""
+
+from __future__ import annotations
+
+import logging
+import pickle
+from pathlib import Path
+
+from .atomic import atomic_path
+
+
+def save(path: Path, payload: dict) -> None:
+    """Pickle atomically (temporary file + rename): a kill mid-write keeps the previous checkpoint."""
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        pickle.dump(payload, f, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def load(path: Path) -> dict | None:
+    try:
+        with open(path, "rb") as f:
+            return pickle.load(f)
+    except Exception:
+        return None
+
+
+def resume(path: Path | None, signature, material, logger: logging.Logger) -> dict | None:
+    """The checkpoint at ``path`` if it belongs to this run (same ``signature``) and ``material``
+    accepts its state (``set_state`` is called); otherwise None, and a checkpoint that is there
+    is removed with one warning saying why."""
+    if path is None or not path.exists():
+        return None
+    saved = load(path)
+    reason = None
+    if saved is None or saved.get("signature") != signature:
+        reason = "it belongs to another run (or is unreadable)"
+    else:
+        try:
+            material.set_state(saved["material_state"])
+        except (ValueError, FileNotFoundError) as error:  # the set refuses a state it cannot continue
+            reason = f"the material set cannot resume it ({error})"
+    if reason is None:
+        return saved
+    path.unlink(missing_ok=True)
+    logger.warning("checkpoint %s set aside: %s; starting afresh", path, reason)
+    return None
