@@ -146,9 +146,11 @@ def test_determinism_and_resume_after_kill(tmp_path_factory, tmp_path):
     assert f"resumed after {step + 1} commits (snapshot after commit {base} + {step + 1 - base} replayed" in err, err[-3000:]
     c = read_run(tmp_path / "c.h5")
     _same_results(a, c)
-    # the resumed run's cost covers all its load steps, those before the kill included
+    # the resumed run's cost covers all its load steps, those before the kill included (their
+    # wall times come from the checkpoint). No comparison with run a's seconds: on a loaded
+    # 2-core machine a 2 s run varies by more than any tolerance that could still fail.
+    assert np.all(c.wall_time.values[:step + 1] > 0)
     assert c.attrs["time_run_s"] >= c.wall_time.values.sum()
-    assert c.attrs["time_run_s"] == pytest.approx(a.attrs["time_run_s"], rel=0.5)
     assert c.attrs["dem_particle_steps"] == a.attrs["dem_particle_steps"] == c.particle_steps.values.sum()
     assert c.attrs["dem_trials"] == a.attrs["dem_trials"]
     assert c.attrs["total_newton_corrections"] == a.attrs["total_newton_corrections"]
