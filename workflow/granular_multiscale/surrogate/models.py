@@ -167,19 +167,24 @@ class ScaledMLP(nn.Module):
 
         Forward-mode differentiation written out for the Linear/activation stack: the tangents
         are pushed through each layer as t <- act'(z) * (W t). One batched pass, no autograd
-        graph: several times faster than vmap(jacrev) for the small matrices of the surrogate."""
+        graph: several times faster than vmap(jacrev) for the small matrices of the surrogate.
+        The tangents are held as [n, k, width], so that each layer is one plain matrix product
+        t @ Wᵀ over n·k rows (an einsum over [n, width, k] copied them into that layout at every
+        layer: 1.5× slower at the paper mesh), and tanh' = 1 − tanh² reuses the layer's output."""
         h = self.scale_x(x)
-        t = dx / self.x_scale[None, :, None]
-        layers = list(self.net)
-        for i, layer in enumerate(layers):
+        t = (dx / self.x_scale[None, :, None]).transpose(1, 2)
+        for layer in self.net:
             if isinstance(layer, nn.Linear):
                 h = torch.nn.functional.linear(h, layer.weight, layer.bias)
-                t = torch.einsum("oi,nik->nok", layer.weight, t)
+                t = torch.matmul(t, layer.weight.T)
+            elif isinstance(layer, nn.Tanh):
+                h = torch.tanh(h)
+                t = t * (1.0 - h * h)[:, None, :]
             else:
                 slope = activation_derivative(layer, h)
                 h = layer(h)
-                t = slope[:, :, None] * t
-        return self.unscale_y(h), t * self.y_scale[None, :, None]
+                t = t * slope[:, None, :]
+        return self.unscale_y(h), (t * self.y_scale).transpose(1, 2)
 
 
 class EnsembleMLP(nn.Module):
