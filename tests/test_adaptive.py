@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 import yaml
@@ -28,7 +29,7 @@ from dem_fixtures import ROOT, SETTINGS, packing, tiny_config
 from granular_multiscale.data import read_run
 from granular_multiscale.dem.material import DemMaterialPointSet
 from granular_multiscale.dem.subset import DemSubsetMaterialPointSet
-from granular_multiscale.drivers.adaptive import run_adaptive
+from granular_multiscale.drivers.adaptive import DEM_TRAJECTORY_VARIABLES, run_adaptive
 from granular_multiscale.drivers.fem_dem import dem_newton_config, run_fem_dem
 from granular_multiscale.drivers.fem_ml import run_fem_ml
 from granular_multiscale.materials.elastoplastic import Elastoplastic
@@ -54,9 +55,11 @@ def strain_history(n_points: int, n_commits: int, seed: int = 3) -> np.ndarray:
     return eps
 
 
-def drive(dem, strains, activate: dict | None = None, detour: bool = True) -> None:
+def drive(dem, strains, activate: dict | None = None, detour: bool = True) -> list[np.ndarray]:
     """Commit `strains` one after another; before commit k activate the points activate[k]; with
-    `detour`, a discarded trial elsewhere first (what Newton does)."""
+    `detour`, a discarded trial elsewhere first (what Newton does). Returns the converged stresses
+    [n, 6] after each commit."""
+    converged = []
     for k, eps in enumerate(strains):
         if activate and k in activate:
             dem.activate(activate[k])
@@ -64,6 +67,8 @@ def drive(dem, strains, activate: dict | None = None, detour: bool = True) -> No
             dem.evaluate(0.5 * eps + 1e-4)
         dem.evaluate(eps)
         dem.commit(eps)
+        converged.append(dem.conv_stress.copy())
+    return converged
 
 
 def test_replayed_rve_is_bit_for_bit_the_rve_that_followed_the_strains(tmp_path_factory):
@@ -71,7 +76,7 @@ def test_replayed_rve_is_bit_for_bit_the_rve_that_followed_the_strains(tmp_path_
     n, strains = 4, strain_history(4, 7)
     kwargs = dict(n_workers=2, snapshot_interval=2)  # re-loads after commits 2, 4, 6: the replay must too
     with DemMaterialPointSet(n, [path], SETTINGS, **kwargs) as fem_dem:
-        drive(fem_dem, strains, detour=False)
+        along = np.array(drive(fem_dem, strains, detour=False))  # [commit - 1, n, 6]
         reference, initial = fem_dem.conv_stress.copy(), fem_dem.initial_stress.copy()
         particle_steps = fem_dem.time_split()["particle_steps"]
     assert np.abs(reference - initial).max() > 1e3  # Pa: the strains did load the RVEs
@@ -90,6 +95,13 @@ def test_replayed_rve_is_bit_for_bit_the_rve_that_followed_the_strains(tmp_path_
         assert np.array_equal(mixed.active, [True, True, True, False])
         assert np.array_equal(mixed.conv_stress[:3], reference[:3])
         assert np.array_equal(mixed.conv_stress[3], initial[3])  # never driven: the packing's state
+        # what the RVEs answered at every commit, the promoted points' past from their replay: the
+        # stresses of the RVEs that followed the strains from the start; nothing for point 3
+        answers = mixed.dem_responses()
+        assert answers["stress"].shape == (8, n, 6) and np.array_equal(answers["strain"][1:], strains)
+        assert np.array_equal(answers["stress"][1:, :3], along[:, :3]) and np.array_equal(answers["stress"][0], initial)
+        assert answers["known"][:, :3].all() and not answers["known"][1:, 3].any() and answers["known"][0, 3]
+        assert np.isnan(answers["tangent"][1:, 3]).all() and np.isfinite(answers["tangent"][:, :3]).all()
         state = mixed.get_state()
         assert state["strain_record"].shape == (8, n, 6)
         # resume: a fresh set replays the active points (bit for bit), and both continue alike
@@ -102,6 +114,9 @@ def test_replayed_rve_is_bit_for_bit_the_rve_that_followed_the_strains(tmp_path_
                 dem.commit(last)
             assert np.array_equal(resumed.conv_stress, mixed.conv_stress)
             assert np.array_equal(resumed.strain_record[-1], last)
+            # the resumed set knows the same answers: its replay filled in the commits before the resume
+            for key, value in resumed.dem_responses().items():
+                np.testing.assert_array_equal(value, mixed.dem_responses()[key], err_msg=key)
 
 
 # -- the adaptive set in the FEM solver --------------------------------------------------------------
@@ -191,22 +206,22 @@ run_adaptive(config, "p", threshold, packings, sigma, None, "autodiff", output, 
 
 @pytest.fixture(scope="module")
 def between(setup, fem_ml_run, tmp_path_factory):
-    """(threshold, run): FEM–ML's spread grows from step 1 to step 3 (1 % at most at step 1, 3 % at
-    step 3; the networks are rough): a threshold in between promotes nobody at step 1, somebody by
-    step 3. The run keeps a checkpoint (removed at the end)."""
+    """(threshold, run, what its RVEs answered): FEM–ML's spread grows from step 1 to step 3 (1 % at
+    most at step 1, 3 % at step 3; the networks are rough): a threshold in between promotes nobody
+    at step 1, somebody by step 3. The run keeps a checkpoint (removed at the end)."""
     indicator = fem_ml_run.stress_spread_relative.values
     threshold = float(0.5 * (indicator[1].max() + indicator[3].max()))
-    checkpoint = tmp_path_factory.mktemp("between") / "full.ckpt"
-    run = adaptive(setup, threshold, checkpoint=checkpoint)
-    assert not checkpoint.exists()  # removed after success
-    return threshold, run
+    folder = tmp_path_factory.mktemp("between")
+    run = adaptive(setup, threshold, checkpoint=folder / "full.ckpt", trajectories=folder / "dem_points.h5")
+    assert not (folder / "full.ckpt").exists()  # removed after success
+    return threshold, run, read_run(folder / "dem_points.h5", required=DEM_TRAJECTORY_VARIABLES)
 
 
 def test_promotions_and_resume_after_kill(setup, between, fem_ml_run, fem_dem_run, tmp_path):
     """At the threshold between: the points whose spread reaches it go DEM (replaying their history),
     the others stay surrogate; killed after the first promotion and started again, the run ends with
     the numbers of the uninterrupted run."""
-    threshold, run = between
+    threshold, run, _ = between
     mode = run.point_mode.values
     first = int(np.flatnonzero(mode.any(axis=1))[0])
     assert 2 <= first <= 3 and 0 < mode[-1].sum() < 16, mode.sum(axis=1)
@@ -253,11 +268,43 @@ def test_promotions_and_resume_after_kill(setup, between, fem_ml_run, fem_dem_ru
                                       "replay_particle_steps", "stress_spread"))
 
 
+def test_dem_points_are_training_data(setup, between, fem_dem_run):
+    """What the RVEs of the promoted points answered, along their whole histories (the past from the
+    replay): the adaptive run's stresses where they ran DEM, a source for the dataset like an RVE-path
+    set, held out by trajectory class."""
+    from granular_multiscale.data import run_tangent
+    from granular_multiscale.history import history_from_sequence
+    from granular_multiscale.surrogate.dataset import build_dataset_from_sources
+    from granular_multiscale.tensors import tangent_to_upper
+
+    config, _, _ = setup
+    _, run, points = between
+    assert int(run.cutbacks.sum()) == 0  # so that commit k is load step k
+    mode = run.point_mode.values
+    assert np.array_equal(points.gp.values, np.flatnonzero(mode[-1])) and points.sizes["step"] == STEPS + 1
+    assert np.array_equal(points.promoted_at.values, mode[:, points.gp.values].argmax(axis=0))
+    assert points.valid.values.all() and np.isfinite(points.stress.values).all()
+    np.testing.assert_array_equal(points.strain.values, run.strain.values[:, points.gp.values])
+    np.testing.assert_array_equal(points.history.values, history_from_sequence(points.strain.values))
+    np.testing.assert_array_equal(points.gp_position.values, run.gp_position.values[points.gp.values])
+    for j, gp in enumerate(points.gp.values):
+        dem = mode[:, gp] == 1  # the steps it answered from DEM: the run's stress and tangent
+        np.testing.assert_array_equal(points.stress.values[dem, j], run.stress.values[dem, gp])
+        np.testing.assert_array_equal(points.tangent.values[dem, j], tangent_to_upper(run_tangent(run)[dem, gp]))
+        # before: its RVE's answers from the replay, not the surrogate's that the run shows
+        before = np.flatnonzero(~dem)[1:]  # step 0 is the consolidated state of both
+        assert np.abs(points.stress.values[before, j] - run.stress.values[before, gp]).min() > 0
+    train, heldout = build_dataset_from_sources([("fem_dem", fem_dem_run), ("dem points", points)], 0.75, 0,
+                                                history_tolerance=config["surrogate"]["history_tolerance"])
+    source = np.concatenate([train.source.values, heldout.source.values])
+    assert (source == "dem points").sum() == points.sizes["gp"] and train.valid.values.any()
+
+
 def test_rule_writes_the_run_its_log_and_benchmark(setup, between, tmp_path):
     """`snakemake <out>/adaptive/t<threshold>/p.h5` with the packing and networks in place (only the
     rule adaptive may run): the run of the driver, with the threshold from adaptive.thresholds."""
     config, packings, sigma = setup
-    threshold, run = between
+    threshold, run, points = between
     out = tmp_path / "out"
     for source, target in ((packings[0], out / "rve" / "packing_0.yade.gz"), (sigma, out / "models" / "nn_sigma.pt"),
                            (sigma, out / "models" / "nn_tangent.pt")):  # the autodiff tangent reads no ND
@@ -274,6 +321,8 @@ def test_rule_writes_the_run_its_log_and_benchmark(setup, between, tmp_path):
     written = read_run(target)
     assert written.attrs["adaptive_threshold"] == threshold
     assert_same(written, run, SAME + ("point_mode", "promotions", "replay_particle_steps"))
+    dem_points = read_run(target.parent / "dem_points" / "p.h5", required=DEM_TRAJECTORY_VARIABLES)
+    assert_same(dem_points, points, ("strain", "stress", "tangent", "valid", "promoted_at"))
     log = (out / "logs" / "adaptive" / f"t{threshold:g}" / "p.log").read_text()
     assert "promoted to DEM" in log and "particle-steps (trials" in log
     assert (out / "benchmarks" / "adaptive" / f"t{threshold:g}" / "p.tsv").exists()
@@ -287,7 +336,7 @@ def test_report_rows_curve_and_mode_map(setup, between, fem_ml_run, fem_dem_run,
     from granular_multiscale.surrogate.dataset import build_dataset_from_sources, write_dataset
 
     config, _, _ = setup
-    threshold, run = between
+    threshold, run, _ = between
     labels = {"FEM–DEM": fem_dem_run, "FEM–ML": fem_ml_run, f"adaptive FEM–DEM–ML, threshold {threshold:g}": run}
     files = {label: str(write_run(ds, tmp_path / f"run{k}.h5")) for k, (label, ds) in enumerate(labels.items())}
     train, heldout = build_dataset_from_sources([(files["FEM–DEM"], fem_dem_run)], 0.75, 0,
@@ -316,3 +365,54 @@ def test_report_rows_curve_and_mode_map(setup, between, fem_ml_run, fem_dem_run,
     # the map's colour: the DEM share of the points at each (x, z), 2 behind each other on this mesh
     columns, share = figures.dem_share_xz(run, STEPS)
     assert len(columns) == 8 and np.isclose(2 * share.sum(), run.point_mode.values[STEPS].sum())
+
+
+def test_one_round_of_active_learning(setup, between, fem_dem_run, tmp_path):
+    """`snakemake active_learning` with the packing, the networks and the FEM–DEM run in place: the
+    adaptive run at adaptive.active_learning.threshold (the run of `between`, bit for bit), its DEM
+    points added to the training sources, NNσ and ND trained again, the adaptive run again with them,
+    and the table of both rounds with FEM–ML, computed from those run files."""
+    from granular_multiscale.analysis.tables import accuracy_row
+    from granular_multiscale.data import write_run
+    from granular_multiscale.surrogate.dataset import read_dataset
+
+    config, packings, sigma = setup
+    threshold, run, points = between
+    out = tmp_path / "out"
+    # in the order of their making, so that no rule but those of the round is out of date
+    for source, target in ((packings[0], out / "rve" / "packing_0.yade.gz"), (None, out / "fem_dem" / "p.h5"),
+                           (sigma, out / "models" / "nn_sigma.pt"), (sigma, out / "models" / "nn_tangent.pt")):
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if source is None:
+            write_run(fem_dem_run, target)
+        else:
+            target.write_bytes(open(source, "rb").read())
+    config = {**config, "output_dir": str(out),
+              "adaptive": {**config["adaptive"], "thresholds": [0.5], "active_learning": {"threshold": threshold}},
+              "surrogate": {**config["surrogate"], "tangent": "autodiff"}}
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+    rules = ["adaptive", "fem_ml", "dataset_active", "train_sigma_active", "train_tangent_active", "adaptive_active",
+             "table_active_learning", "active_learning"]
+    snakemake = Path(sys.executable).with_name("snakemake")
+    result = subprocess.run([str(snakemake), "-j2", "--configfile", str(tmp_path / "config.yaml"), "--rerun-triggers",
+                             "mtime", "--allowed-rules", *rules, "--", "active_learning"], cwd=ROOT,
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    label = f"t{threshold:g}"
+    first = read_run(out / "adaptive" / label / "p.h5")
+    assert_same(first, run, SAME + ("point_mode", "promotions"))
+    again = read_run(out / "active" / "adaptive" / label / "p.h5")
+    assert again.attrs["adaptive_threshold"] == threshold and again.attrs["surrogate_sigma_model"].endswith("active/models/nn_sigma.pt")
+    # the round's training data: the pipeline's sources and the first run's DEM points
+    sources = np.concatenate([read_dataset(out / "active" / "dataset" / f).source.values for f in ("train.h5", "heldout.h5")])
+    assert (sources == str(out / "adaptive" / label / "dem_points" / "p.h5")).sum() == points.sizes["gp"] > 0
+    assert (sources == str(out / "fem_dem" / "p.h5")).sum() == 16
+    table = pd.read_csv(out / "tables" / "active_learning.csv").set_index("round")
+    assert table.index.tolist() == ["FEM–ML", "first", "after one round"]
+    for name, ds in (("first", first), ("after one round", again)):
+        row = table.loc[name]
+        assert row["promotions"] == int(ds.promotions.sum()) and row["dem_points_final"] == ds.attrs["dem_points_final"]
+        assert row["dem_share_of_fem_dem"] == pytest.approx(ds.attrs["dem_particle_steps"]
+                                                            / fem_dem_run.attrs["dem_particle_steps"])
+        assert row["top_force_max_rel_pct"] == pytest.approx(accuracy_row(fem_dem_run, ds, "", "p")["top_force_max_rel_pct"])
+    assert table.loc["first", "promotions"] == points.sizes["gp"] and table.loc["FEM–ML", "dem_particle_steps"] == 0

@@ -116,9 +116,11 @@ def _check_consistency(config: dict) -> None:
         if not kind and name not in paths:
             raise ConfigError(f"config key 'surrogate.training_sources': unknown load path {name!r}; defined paths: "
                               f"{sorted(paths)}")
-    for name in config["adaptive"]["paths"]:
-        if name not in paths:
-            raise ConfigError(f"config key 'adaptive.paths': unknown load path {name!r}; defined paths: {sorted(paths)}")
+    for key, names in (("adaptive.paths", config["adaptive"]["paths"]),
+                       ("adaptive.active_learning.paths", config["adaptive"]["active_learning"]["paths"])):
+        for name in names:
+            if name not in paths:
+                raise ConfigError(f"config key '{key}': unknown load path {name!r}; defined paths: {sorted(paths)}")
     study = config["tolerance_study"]
     if study["path"] not in paths:
         raise ConfigError(f"config key 'tolerance_study.path': unknown path {study['path']!r}; defined paths: "

@@ -10,6 +10,10 @@
 #   fem_ml_nohist          {OUT}/fem_ml_nohist/{path}.h5   the ablation without history variables
 #   fem_ml_tangent         {OUT}/fem_ml_{nn,autodiff}/{path}.h5   Newton iterations of both tangents
 #   metrics                {OUT}/tables/*.csv
+#   dataset_active, train_{sigma,tangent}_active   the active-learning round (adaptive.smk): the same
+#                          sources plus the DEM answers of adaptive runs -> {OUT}/active/dataset, {OUT}/active/models
+from granular_multiscale.adaptive import threshold_label
+
 SURROGATE = config["surrogate"]
 TRAINING_PATH = config["training_path"]
 VALIDATION_PATH = config["validation_path"]
@@ -28,6 +32,12 @@ NETWORKS = {
     "tangent_nohist": ("tangent", False),
 }
 SURROGATE_THREADS = SURROGATE["torch_threads"]
+# one round of active learning (adaptive.active_learning): the adaptive runs at its threshold on its
+# paths write the DEM answers of their promoted points ({OUT}/adaptive/<label>/dem_points/<path>.h5), which
+# join the training sources of a second training round
+ACTIVE = config["adaptive"]["active_learning"]
+ACTIVE_LABEL = threshold_label(ACTIVE["threshold"])
+ACTIVE_PATHS = ACTIVE["paths"] or config["adaptive"]["paths"] or [VALIDATION_PATH]
 # the keys of `surrogate` that change a trained network (only these re-run the training rules)
 TRAINING_KEYS = [
     "hidden_layers", "hidden_units", "activation", "batch_size", "learning_rate", "epochs", "ensemble_size", "lr_schedule",
@@ -36,8 +46,18 @@ TRAINING_KEYS = [
 ]
 
 
-def model_file(network):
-    return f"{OUT}/models/nn_{network}.pt"
+def model_file(network, round=""):
+    return f"{OUT}/{round}models/nn_{network}.pt"
+
+
+# training rounds, by the folder prefix of their outputs: the pipeline's networks, and those of the
+# active-learning round (NNσ and ND with history only: what the adaptive runs use)
+TRAINING_SOURCE_FILES = [reference_run(p) for p in TRAINING_RUN_PATHS] + [f"{OUT}/rve_paths/{s}.h5" for s in TRAINING_RVE_SETS]
+TRAINING_ROUNDS = {
+    "": (TRAINING_SOURCE_FILES, NETWORKS),
+    "active/": (TRAINING_SOURCE_FILES + [f"{OUT}/adaptive/{ACTIVE_LABEL}/dem_points/{p}.h5" for p in ACTIVE_PATHS],
+                {n: NETWORKS[n] for n in ("sigma", "tangent")}),
+}
 
 
 def fem_ml_depends(wc):
@@ -52,51 +72,55 @@ def fem_ml_depends(wc):
     }
 
 
-rule dataset:
-    input:
-        sources=[reference_run(p) for p in TRAINING_RUN_PATHS] + [f"{OUT}/rve_paths/{s}.h5" for s in TRAINING_RVE_SETS],
-    output:
-        train=f"{OUT}/dataset/train.h5",
-        heldout=f"{OUT}/dataset/heldout.h5",
-    log:
-        f"{OUT}/logs/surrogate/dataset.log",
-    benchmark:
-        f"{OUT}/benchmarks/surrogate/dataset.tsv"
-    params:
-        seed=config["seed"],
-        train_fraction=SURROGATE["train_fraction"],
-        split=SURROGATE["split"],
-        history_tolerance=SURROGATE["history_tolerance"],
-    threads: 1
-    script:
-        "../../scripts/surrogate_dataset.py"
-
-
-for _network, (_kind, _history) in NETWORKS.items():
+for _round, (_sources, _networks) in TRAINING_ROUNDS.items():
+    _suffix = "_active" if _round else ""
 
     rule:
         name:
-            f"train_{_network}"
+            f"dataset{_suffix}"
         input:
-            train=f"{OUT}/dataset/train.h5",
-            heldout=f"{OUT}/dataset/heldout.h5",
+            sources=_sources,
         output:
-            model=model_file(_network),
-            losses=f"{OUT}/training/{_network}.csv",
-            mae=f"{OUT}/training/{_network}_mae.csv",
-            figure=f"{OUT}/training/{_network}_loss.png",
+            train=f"{OUT}/{_round}dataset/train.h5",
+            heldout=f"{OUT}/{_round}dataset/heldout.h5",
         log:
-            f"{OUT}/logs/surrogate/train_{_network}.log",
+            f"{OUT}/logs/surrogate/{_round}dataset.log",
         benchmark:
-            f"{OUT}/benchmarks/surrogate/train_{_network}.tsv"
+            f"{OUT}/benchmarks/surrogate/{_round}dataset.tsv"
         params:
-            kind=_kind,
-            use_history=_history,
-            settings={k: SURROGATE[k] for k in TRAINING_KEYS},
             seed=config["seed"],
-        threads: SURROGATE_THREADS
+            train_fraction=SURROGATE["train_fraction"],
+            split=SURROGATE["split"],
+            history_tolerance=SURROGATE["history_tolerance"],
+        threads: 1
         script:
-            "../../scripts/surrogate_train.py"
+            "../../scripts/surrogate_dataset.py"
+
+    for _network, (_kind, _history) in _networks.items():
+
+        rule:
+            name:
+                f"train_{_network}{_suffix}"
+            input:
+                train=f"{OUT}/{_round}dataset/train.h5",
+                heldout=f"{OUT}/{_round}dataset/heldout.h5",
+            output:
+                model=model_file(_network, _round),
+                losses=f"{OUT}/{_round}training/{_network}.csv",
+                mae=f"{OUT}/{_round}training/{_network}_mae.csv",
+                figure=f"{OUT}/{_round}training/{_network}_loss.png",
+            log:
+                f"{OUT}/logs/surrogate/{_round}train_{_network}.log",
+            benchmark:
+                f"{OUT}/benchmarks/surrogate/{_round}train_{_network}.tsv"
+            params:
+                kind=_kind,
+                use_history=_history,
+                settings={k: SURROGATE[k] for k in TRAINING_KEYS},
+                seed=config["seed"],
+            threads: SURROGATE_THREADS
+            script:
+                "../../scripts/surrogate_train.py"
 
 
 rule fem_ml:

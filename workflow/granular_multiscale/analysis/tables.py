@@ -419,3 +419,49 @@ def write_html_table(table: pd.DataFrame, out: str | Path, *, title: str, note: 
     with atomic_path(out) as tmp:
         tmp.write_text(page)
     return Path(out)
+
+
+def active_learning_table(rounds: Mapping[str, Mapping[str, xr.Dataset]],
+                          references: Mapping[str, xr.Dataset] | None = None,
+                          fem_ml: Mapping[str, xr.Dataset] | None = None) -> pd.DataFrame:
+    """One row per (load path, round) of the active-learning round (``adaptive.active_learning``):
+    rounds {round name: {path: adaptive run}} at the same threshold, the first with the pipeline's
+    networks, the next trained again with the DEM answers of the first's promoted points.
+
+    Columns: promotions (points promoted during the run; anchors not counted), DEM points at the
+    end, share of the point-steps in DEM mode, DEM particle-steps (trials + replays) and, with a
+    FEM–DEM reference of the path, their share of the reference's and the top-force error in %
+    of its peak (largest over the steps, as ``accuracy_row``). FEM–ML runs with the pipeline's
+    networks, where given, add a row "FEM–ML" per path (no DEM), the end the curve starts from."""
+    references, fem_ml = references or {}, fem_ml or {}
+    rows = []
+    for path in dict.fromkeys(p for runs in rounds.values() for p in runs):
+        reference = references.get(path)
+        ref_steps = float(reference.attrs["dem_particle_steps"]) if reference is not None else float("nan")
+
+        def errors(run):
+            if reference is None:
+                return float("nan"), float("nan")
+            row = accuracy_row(reference, run, "", path)
+            return row["top_force_max_rel_pct"], row["stress_mae_all_kpa"]
+
+        if path in fem_ml:
+            force, mae = errors(fem_ml[path])
+            rows.append({"path": path, "round": "FEM–ML", "threshold": float("inf"), "promotions": 0,
+                         "dem_points_final": 0, "dem_point_fraction": 0.0, "dem_particle_steps": 0.0,
+                         "dem_share_of_fem_dem": 0.0, "top_force_max_rel_pct": force, "stress_mae_all_kpa": mae,
+                         "wall_time_s": run_wall_time(fem_ml[path])})
+        for name, runs in rounds.items():
+            if path not in runs:
+                continue
+            run = runs[path]
+            steps = float(run.attrs["dem_particle_steps"])
+            force, mae = errors(run)
+            rows.append({
+                "path": path, "round": name, "threshold": float(run.attrs["adaptive_threshold"]),
+                "promotions": int(run["promotions"].sum()), "dem_points_final": int(run.attrs["dem_points_final"]),
+                "dem_point_fraction": float(run.attrs["dem_point_fraction"]), "dem_particle_steps": steps,
+                "dem_share_of_fem_dem": steps / ref_steps, "top_force_max_rel_pct": force,
+                "stress_mae_all_kpa": mae, "wall_time_s": run_wall_time(run),
+            })
+    return pd.DataFrame(rows)

@@ -30,6 +30,16 @@ The replay costs one DEM increment per past commit and point, accounted separate
 trials (``replay_particle_steps``, ``replay_dem_time``, ``replay_time`` in :meth:`step_info`,
 ``activated``: points activated since the last commit).
 
+What the RVEs answered (:meth:`dem_responses`)
+----------------------------------------------
+Besides the strains, the set keeps every converged DEM answer: per commit and point the RVE's
+stress and tangent where the point was active at that commit, from the replay of its past
+commits when it was activated (the answers a promoted point's RVE gives along its whole history)
+and from the trials the solver accepted since. Where an RVE was not at a commit's converged
+state (a point never activated, or one activated later that has not replayed it yet) the entry
+is NaN. These are DEM trajectories like those of the RVE-path sets: what the active-learning
+round of the adaptive runs trains on (``drivers/adaptive.py``).
+
 Checkpoints
 -----------
 No snapshot files: the state is the strain record, the active mask and the commit count (at the
@@ -60,11 +70,27 @@ class DemSubsetMaterialPointSet(DemMaterialPointSet):
         super().__init__(n_points, packings, settings, **kwargs)
         self.active = np.zeros(self.n_points, dtype=bool)
         self.strain_record: list[np.ndarray] = [np.zeros((self.n_points, 6))]  # [0]: before the first commit
+        self._start_response_record(0)
 
     @staticmethod
     def _make_slots(n_points: int, n_slots: int) -> list[np.ndarray]:
         """Interleaved: point i on host i mod n_slots (active points cluster in space)."""
         return [np.arange(j, n_points, n_slots) for j in range(n_slots)]
+
+    def _start_response_record(self, commits: int) -> None:
+        """The DEM answers known after a (re)load of the packings: the consolidated state at commit 0
+        for every point, NaN at the `commits` commits after it (filled by replays and commits)."""
+        self.stress_record = [self.conv_stress.copy()] + [np.full((self.n_points, 6), np.nan) for _ in range(commits)]
+        self.tangent_record = [self.conv_tangent.copy()] + [np.full((self.n_points, 6, 6), np.nan)
+                                                             for _ in range(commits)]
+
+    def dem_responses(self) -> dict[str, np.ndarray]:
+        """The converged DEM answers so far (module docstring): ``strain`` [commits + 1, n, 6] (every
+        point's converged strain), ``stress`` [.., n, 6] and ``tangent`` [.., n, 6, 6] (NaN where the
+        point's RVE was not at that state) and ``known`` [.., n] where they are not NaN."""
+        stress = np.asarray(self.stress_record)
+        return {"strain": np.asarray(self.strain_record), "stress": stress, "tangent": np.asarray(self.tangent_record),
+                "known": np.isfinite(stress).all(axis=-1)}
 
     def _reset_step_counters(self) -> None:
         super()._reset_step_counters()
@@ -119,6 +145,8 @@ class DemSubsetMaterialPointSet(DemMaterialPointSet):
         self.conv_strain = np.where(self.active[:, None], t["strain"], self.conv_strain)
         self.conv_stress, self.conv_tangent = t["stress"], t["tangent"]
         self.strain_record.append(strain.copy())
+        self.stress_record.append(np.where(self.active[:, None], self.conv_stress, np.nan))
+        self.tangent_record.append(np.where(self.active[:, None, None], self.conv_tangent, np.nan))
         self._close_commit(t0)
 
     def rollback(self) -> None:
@@ -148,6 +176,8 @@ class DemSubsetMaterialPointSet(DemMaterialPointSet):
                     mine = new[idx]
                     self.conv_stress[idx[mine]] = r["stress"][mine]
                     self.conv_tangent[idx[mine]] = r["tangent"][mine]
+                    self.stress_record[k][idx[mine]] = r["stress"][mine]
+                    self.tangent_record[k][idx[mine]] = r["tangent"][mine]
                     particle_steps += r["particle_steps"]
                     dem_time += r["dem_time"]
             if self._snapshot_due(k):
@@ -197,6 +227,7 @@ class DemSubsetMaterialPointSet(DemMaterialPointSet):
         self.active = np.zeros(self.n_points, dtype=bool)
         self.strain_record = list(record)
         self.commits = int(state["commits"])
+        self._start_response_record(self.commits)  # the replay below fills in what the active RVEs answered
         self.activate(np.flatnonzero(state["active"]))
         self._reset_step_counters()
         diff = np.abs(self.conv_stress - np.asarray(state["converged_stress"]))[self.active]

@@ -29,6 +29,12 @@ run's stress, DEM where the point is DEM) and (:func:`adaptive_variables`):
 
 Checkpoint: that of every FEM run (``TriaxialProblem.run``), holding the set's state; the DEM
 points resume by replay, bit for bit.
+
+What the RVEs answered (``trajectories`` output, :func:`dem_trajectories`): one ``gp`` per point
+that ran DEM (anchors and promoted points), its converged strain, DEM stress and tangent at every
+commit from step 0 on (a promoted point's past commits from its replay). These are DEM data of the
+points where the networks were unsure, a training source like an RVE-path set: the
+active-learning round (``adaptive.active_learning``, ``workflow/rules/adaptive.smk``) trains on them.
 """
 
 from __future__ import annotations
@@ -44,7 +50,9 @@ from ..adaptive.material import AdaptiveMaterialPointSet, anchor_points
 from ..data import write_run
 from ..dem.subset import DemSubsetMaterialPointSet
 from ..fem.triaxial import TriaxialProblem
+from ..history import HIST, history_from_sequence
 from ..paths import load_paths_from_config
+from ..tensors import COMP, TCOMP, tangent_to_upper
 from .fem_dem import dem_newton_config
 from .fem_ml import commits_of_steps, run_keeping_partial, spread_variables, surrogate_attributes, surrogate_material
 
@@ -57,10 +65,12 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
                  sigma_model: str | Path, tangent_model: str | Path | None, tangent: str,
                  output: str | Path | None = None, checkpoint: str | Path | None = None,
                  n_workers: int | None = None, logger: logging.Logger | None = None,
-                 allow_partial: bool = False, dask_client=None) -> xr.Dataset:
+                 allow_partial: bool = False, dask_client=None,
+                 trajectories: str | Path | None = None) -> xr.Dataset:
     """One adaptive run of load path `path_name` at `threshold` (validated config); returns the run
-    Dataset and writes it to `output` (if given). A step that does not converge raises
-    ConvergenceError, or with `allow_partial` keeps the converged steps (``completed = 0``)."""
+    Dataset and writes it to `output` (if given), and what its RVEs answered to `trajectories` (if
+    given; :func:`dem_trajectories`). A step that does not converge raises ConvergenceError, or with
+    `allow_partial` keeps the converged steps (``completed = 0``)."""
     logger = logger or logging.getLogger("granular_multiscale.drivers.adaptive")
     cfg = dem_newton_config(config)
     paths = load_paths_from_config(cfg)
@@ -116,10 +126,62 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
         "particle-steps (trials %.3g + replays %.3g), wall %.1f s", path_name, threshold, int(ds["dem_points"][-1]),
         n, 100 * ds.attrs["dem_point_fraction"], trial + replay, trial, replay, float(ds.attrs["time_run_s"]),
     )
+    if trajectories is not None:
+        dem_points = dem_trajectories(material, problem, f"{path_name} at threshold {threshold:g}")
+        write_run(dem_points, trajectories, config, required=DEM_TRAJECTORY_VARIABLES)
+        logger.info("wrote %s: the DEM answers of %d points along their %d commits", trajectories,
+                    dem_points.sizes["gp"], dem_points.sizes["step"] - 1)
     if output is not None:
         write_run(ds, output, config)
         logger.info("wrote %s", output)
     return ds
+
+
+DEM_TRAJECTORY_VARIABLES = ("strain", "stress", "tangent", "history", "valid", "promoted_at")
+
+
+def dem_trajectories(material: AdaptiveMaterialPointSet, problem: TriaxialProblem, run: str) -> xr.Dataset:
+    """The points of an adaptive run that ran DEM, as trajectories (one ``gp`` each, the mesh point's
+    id): per commit ``strain``, ``stress``, ``tangent`` (upper triangle, as in the data contract),
+    ``history`` and ``valid`` (the RVE's answer at that state is known: always, for these points),
+    ``promoted_at`` (the point answered from DEM from this step on; 0 = anchor) and ``gp_position``.
+    The step coordinate counts the solver's commits, from that of load step 0 (the consolidated
+    state) on: without cut-backs it is the load step; a cut-back's sub-steps are states of their
+    own, as in the networks' history variables."""
+    responses = {k: v[1:] for k, v in material.dem.dem_responses().items()}  # [0]: before the first commit
+    points = np.flatnonzero(material.dem_mode)
+    strain = responses["strain"][:, points]
+    known = responses["known"][:, points]
+    stress = np.where(known[..., None], responses["stress"][:, points], np.nan)
+    tangent = np.where(known[..., None], tangent_to_upper(responses["tangent"][:, points]), np.nan)
+    uniform = material.n_points != problem.n_gauss_points  # the one point of a uniform field has no position
+    positions = np.full((points.size, 3), np.nan) if uniform else problem.gp_positions[points]
+    sgc = ("step", "gp", "comp")
+    return xr.Dataset(
+        {
+            "strain": (sgc, strain, {"units": "1", "long_name": "converged strain of the point (tensorial shear)"}),
+            "stress": (sgc, stress, {"units": "Pa", "long_name": "the point's RVE stress, tension positive"}),
+            "tangent": (("step", "gp", "tcomp"), tangent, {"units": "Pa", "long_name": "upper triangle of the RVE's "
+                                                                                       "tangent dσ/d(engineering ε)"}),
+            "history": (("step", "gp", "hist"), history_from_sequence(strain), {"units": "1", "long_name": "φ1–φ3, ψ1, ψ2"}),
+            "valid": (("step", "gp"), known, {"long_name": "the RVE's answer at this state is known"}),
+            "promoted_at": (("gp",), material.promoted_at[points], {"long_name": "first step the point answered "
+                                                                                 "from its RVE (0: anchor)"}),
+            "gp_position": (("gp", "xyz"), positions, {"units": "m"}),
+        },
+        coords={"step": np.arange(strain.shape[0]), "gp": points, "comp": list(COMP), "tcomp": list(TCOMP),
+                "hist": list(HIST), "xyz": ["x", "y", "z"]},
+        attrs={
+            "method": "adaptive_dem",
+            "adaptive_run": run,
+            "adaptive_threshold": material.threshold,
+            "adaptive_indicator": material.indicator,
+            "n_points": material.n_points,
+            "n_dem_points": int(points.size),
+            "step_meaning": "commit of the solver, from that of load step 0 (the consolidated state) on; "
+                            "= the load step without cut-backs",
+        },
+    )
 
 
 def adaptive_variables(material: AdaptiveMaterialPointSet, ds: xr.Dataset) -> dict[str, xr.Variable]:
