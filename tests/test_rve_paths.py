@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import pickle
+import re
 import signal
 import subprocess
 import sys
@@ -47,6 +48,27 @@ def paths_of(sets: dict, name: str = "s", **section):
 
 
 # ------------------------------------------------------------------------------ generator
+def test_a_set_with_its_own_settings_draws_with_them_and_leaves_the_others_alone():
+    """rve_paths.sets.<name>.settings replaces keys of the section for that set only: its triaxial
+    trajectories go past the section's max_strain to their own, with up to their own cycle count;
+    the other set is drawn as it is without the first."""
+    own = {"max_strain": 0.09, "triaxial": {"cycles_min": 4, "cycles_max": 5}}
+    config, long = paths_of({"s": {"triaxial": 6, "n_steps": 90, "settings": own},
+                             "t": {"triaxial": 6, "n_steps": 40}})
+    assert config["rve_paths"]["max_strain"] == 0.05  # the section keeps its own
+    # (a triaxial trajectory designs ε33 alone: its volume is the RVE's response, not bounded)
+    assert 0.05 < np.abs(long.strain[..., 2]).max() <= bounds_from_config(config, "s").max_strain == 0.09
+    assert all(4 <= len(p["reversal_steps"]) // 2 <= 5 for p in long.parameters)
+    other = strain_paths_from_config(config, "t").strain
+    np.testing.assert_array_equal(other, paths_of({"t": {"triaxial": 6, "n_steps": 40}}, "t")[1].strain)
+    assert np.abs(other[..., 2]).max() <= 0.05 + BOUND_SLACK
+    for bad, message in (({"max_strain": -1.0}, "rve_paths.sets.s.settings.max_strain"),
+                         ({"triaxial": {"cycle_max": 5}}, "rve_paths.sets.s.settings.triaxial"),
+                         ({"sets": {}}, "unknown keys ['sets']")):
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            config_with({"s": {"triaxial": 6, "n_steps": 90, "settings": bad}})
+
+
 def test_axisymmetric_paths_follow_their_definition():
     """ε11 = ε22 = −ν ε33 exactly, no shear, |ε33| moves by exactly `increment` every step and
     turns exactly at the drawn reversal steps (1–3 unload–reload cycles), ending at its largest

@@ -99,6 +99,24 @@ def validate_config(config: dict, schema: dict | None = None) -> dict:
     return config
 
 
+def _check_set_settings(config: dict) -> None:
+    """Each RVE-path set's own ``settings``: keys of rve_paths, with the section's schema."""
+    from .dem.strain_paths import merged, set_section
+
+    schema = load_schema()["properties"]["rve_paths"]
+    section_schema = {**schema, "properties": {k: v for k, v in schema["properties"].items() if k != "sets"}}
+    for name, definition in config["rve_paths"]["sets"].items():
+        settings = definition.get("settings", {})
+        unknown = sorted(set(settings) - set(section_schema["properties"]))
+        if unknown:
+            raise ConfigError(f"config key 'rve_paths.sets.{name}.settings': unknown keys {unknown} (keys of rve_paths "
+                              f"other than sets: {sorted(section_schema['properties'])})")
+        errors = list(jsonschema.Draft7Validator(section_schema).iter_errors(merged(set_section(config), settings)))
+        if errors:
+            e = errors[0]
+            raise ConfigError(f"config key 'rve_paths.sets.{name}.settings.{_key(e.absolute_path)}': {e.message}")
+
+
 def _check_consistency(config: dict) -> None:
     from .paths import load_paths_from_config
 
@@ -116,6 +134,7 @@ def _check_consistency(config: dict) -> None:
         if not kind and name not in paths:
             raise ConfigError(f"config key 'surrogate.training_sources': unknown load path {name!r}; defined paths: "
                               f"{sorted(paths)}")
+    _check_set_settings(config)
     for key, names in (("adaptive.paths", config["adaptive"]["paths"]),
                        ("adaptive.active_learning.paths", config["adaptive"]["active_learning"]["paths"])):
         for name in names:

@@ -149,19 +149,38 @@ def check_section(section: dict) -> None:
                               f"{section[key]} (needs at least {room:g})")
 
 
-def bounds_from_config(config: dict) -> StrainBounds:
-    s = config["rve_paths"]
+def merged(base: dict, override: dict) -> dict:
+    """`base` with the keys of `override` replaced, nested mappings key by key."""
+    out = dict(base)
+    for key, value in override.items():
+        out[key] = merged(base[key], value) if isinstance(value, dict) and isinstance(base.get(key), dict) else value
+    return out
+
+
+def set_section(config: dict, name: str | None = None) -> dict:
+    """The ``rve_paths`` settings (bounds, increment, family settings, contact loss; not ``sets``)
+    that set `name` is drawn and driven with: the section's, with what the set's own ``settings``
+    replace (e.g. a set of long triaxial trajectories to larger strains: ``{max_strain: 0.09}``).
+    Without a name, the section's."""
+    section = {k: v for k, v in config["rve_paths"].items() if k != "sets"}
+    if name is None:
+        return section
+    return merged(section, set_definition(config, name).get("settings", {}))
+
+
+def bounds_from_config(config: dict, name: str | None = None) -> StrainBounds:
+    s = set_section(config, name)
     return StrainBounds(s["max_strain"], s["max_shear"], s["max_volumetric_extension"], s["max_volumetric_compaction"])
 
 
 def strain_paths_from_config(config: dict, name: str) -> StrainPaths:
     """Generate the set ``rve_paths.sets.<name>`` of a validated config."""
-    section = config["rve_paths"]
+    section = set_section(config, name)
     definition = set_definition(config, name)
     check_section(section)
     return generate(
         name, {f: definition[f] for f in FAMILIES}, definition["n_steps"],
-        int(config["seed"]) + definition["seed_offset"], section["increment"], bounds_from_config(config),
+        int(config["seed"]) + definition["seed_offset"], section["increment"], bounds_from_config(config, name),
         {f: section[f] for f in FAMILIES},
     )
 

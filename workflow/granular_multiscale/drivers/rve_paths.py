@@ -34,7 +34,8 @@ import xarray as xr
 from .. import checkpoint as checkpoints
 from ..data import RVE_PATHS_VARIABLES, write_run
 from ..dem.material import DemMaterialPointSet
-from ..dem.strain_paths import STRESS_CONTROLLED, StrainPaths, lateral_servo, set_definition, strain_paths_from_config
+from ..dem.strain_paths import (STRESS_CONTROLLED, StrainPaths, lateral_servo, set_definition, set_section,
+                                strain_paths_from_config)
 from ..materials import make_material
 from ..history import HIST, history_from_sequence
 from ..tensors import COMP, TCOMP, tangent_to_upper
@@ -59,12 +60,11 @@ def contact_lost(stress: np.ndarray, tangent: np.ndarray, pressure: float,
 
 
 def _signature(config: dict, set_name: str, paths: StrainPaths, material) -> dict:
-    section = {k: v for k, v in config["rve_paths"].items() if k != "sets"}
     return {
         "format": CHECKPOINT_FORMAT,
         "set": set_name,
         "definition": set_definition(config, set_name),
-        "rve_paths": section,
+        "rve_paths": set_section(config, set_name),
         "seed": config["seed"],
         "confining_pressure": config["specimen"]["confining_pressure"],
         "strain_sha256": hashlib.sha256(np.ascontiguousarray(paths.strain).tobytes()).hexdigest(),
@@ -80,7 +80,7 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
     paths = strain_paths_from_config(config, set_name)
     n_traj, n_steps = paths.n_trajectories, paths.n_steps
     pressure = float(config["specimen"]["confining_pressure"])
-    criterion = config["rve_paths"]["contact_loss"]
+    criterion = set_section(config, set_name)["contact_loss"]
     checkpoint, scenes_dir = checkpoint_and_scenes(checkpoint)
     counts = ", ".join(f"{(paths.family == f).sum()} {f}" for f in dict.fromkeys(paths.family))
     logger.info("RVE paths %s: %d trajectories (%s) x %d steps = %d RVE evaluations of %d spheres, largest "
