@@ -58,6 +58,11 @@ class DatasetError(ValueError):
     """A reference run cannot make a dataset; the message names the file, variable, step or Gauss point."""
 
 
+#: sources whose gp are trajectories, not the Gauss points of one mesh run: RVE-path sets and the
+#: DEM points of an adaptive run (their ids are not counted as train_gp/heldout_gp mesh points)
+TRAJECTORY_SETS = ("rve_paths", "adaptive_dem")
+
+
 def history_selection(history=True) -> tuple[str, ...]:
     """Which history variables a network takes: True = φ1–φ3 (the paper), False = none (the
     ablation), or a list of names from ``history.HIST`` (config ``surrogate.history_variables``),
@@ -262,7 +267,7 @@ def build_dataset_from_sources(sources, train_fraction: float, seed: int, split:
         train_idx, _ = split_trajectories(classes, train_fraction, seed + k, always)
         is_train = np.zeros(run.sizes["gp"], dtype=bool)
         is_train[train_idx] = True
-        is_run = str(run.attrs.get("method", "")) != "rve_paths"
+        is_run = str(run.attrs.get("method", "")) not in TRAJECTORY_SETS
         for key, values in (("strain", _pad(strain, n_steps, "last")), ("history", _pad(history, n_steps, "last")),
                             ("stress", _pad(stress, n_steps, np.nan)), ("tangent", _pad(tangent, n_steps, np.nan)),
                             ("valid", _pad(valid, n_steps, False))):
