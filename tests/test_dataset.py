@@ -159,6 +159,8 @@ def test_bad_runs_are_named(run):
     reordered = run.assign_coords(comp=["11", "22", "33", "12", "13", "23"])
     with pytest.raises(DatasetError, match="coordinate 'comp'"):
         build_dataset(reordered, 0.75, 0)
+    with pytest.raises(DatasetError, match="dem_points.h5: no trajectories"):
+        build_dataset_from_sources([("ref.h5", run), ("dem_points.h5", run.isel(gp=slice(0, 0)))], 0.75, 0)
 
 
 def test_synthetic_run_is_the_material_response(run):

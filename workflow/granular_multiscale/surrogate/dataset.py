@@ -211,6 +211,9 @@ def _check_contract(run: xr.Dataset, source: str) -> None:
         raise DatasetError(f"{source}: coordinate 'tcomp' is {list(run.tcomp.values)}, expected {list(TCOMP)}")
     if run.sizes["step"] < 2:
         raise DatasetError(f"{source}: a dataset needs at least 2 steps, the run has {run.sizes['step']}")
+    if run.sizes["gp"] == 0:
+        raise DatasetError(f"{source}: no trajectories (an adaptive run that promoted no point has no DEM "
+                           "answers to learn from: lower adaptive.active_learning.threshold)")
     valid = _valid_of(run)
     _check_finite(run, "strain", source)
     for name in ("stress", "tangent"):
