@@ -2,6 +2,7 @@
 
     save(path, payload)                          temporary file + rename: a kill keeps the last one
     resume(path, signature, material, logger)    the saved payload, or None (and the file set aside)
+    checkpoint_and_scenes(path)                  a DEM run's checkpoint and its RVE snapshot folder
 
 The FEM solver (``fem.triaxial``) and the RVE-path driver (``drivers.rve_paths``) checkpoint
 after every step this way; the payload holds ``signature`` and ``material_state``.
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import pickle
+import shutil
 from pathlib import Path
 
 from .atomic import atomic_path
@@ -50,3 +52,15 @@ def resume(path: Path | None, signature, material, logger: logging.Logger) -> di
     path.unlink(missing_ok=True)
     logger.warning("checkpoint %s set aside: %s; starting afresh", path, reason)
     return None
+
+
+def checkpoint_and_scenes(checkpoint: str | Path | None) -> tuple[Path | None, Path | None]:
+    """(checkpoint, folder of its RVE scene snapshots) of a DEM run; snapshots without their
+    checkpoint belong to an older, finished or abandoned run and are removed."""
+    if not checkpoint:
+        return None, None
+    checkpoint = Path(checkpoint)
+    scenes_dir = checkpoint.with_name(checkpoint.name + ".scenes")
+    if not checkpoint.exists() and scenes_dir.exists():
+        shutil.rmtree(scenes_dir)
+    return checkpoint, scenes_dir

@@ -95,15 +95,15 @@ def validate_config(config: dict, schema: dict | None = None) -> dict:
         raise ConfigError("invalid configuration:\n  " + "\n  ".join(lines))
     if not config["tolerance_study"]["path"]:
         config["tolerance_study"]["path"] = config["validation_path"]
-    _check_consistency(config)
+    _check_consistency(config, schema)
     return config
 
 
-def _check_set_settings(config: dict) -> None:
+def _check_set_settings(config: dict, schema: dict) -> None:
     """Each RVE-path set's own ``settings``: keys of rve_paths, with the section's schema."""
     from .dem.strain_paths import merged, set_section
 
-    schema = load_schema()["properties"]["rve_paths"]
+    schema = schema["properties"]["rve_paths"]
     section_schema = {**schema, "properties": {k: v for k, v in schema["properties"].items() if k != "sets"}}
     for name, definition in config["rve_paths"]["sets"].items():
         settings = definition.get("settings", {})
@@ -117,7 +117,7 @@ def _check_set_settings(config: dict) -> None:
             raise ConfigError(f"config key 'rve_paths.sets.{name}.settings.{_key(e.absolute_path)}': {e.message}")
 
 
-def _check_consistency(config: dict) -> None:
+def _check_consistency(config: dict, schema: dict) -> None:
     from .paths import load_paths_from_config
 
     paths = load_paths_from_config(config)
@@ -134,7 +134,7 @@ def _check_consistency(config: dict) -> None:
         if not kind and name not in paths:
             raise ConfigError(f"config key 'surrogate.training_sources': unknown load path {name!r}; defined paths: "
                               f"{sorted(paths)}")
-    _check_set_settings(config)
+    _check_set_settings(config, schema)
     for key, names in (("adaptive.paths", config["adaptive"]["paths"]),
                        ("adaptive.active_learning.paths", config["adaptive"]["active_learning"]["paths"])):
         for name in names:

@@ -17,7 +17,6 @@ import re
 
 ADAPTIVE = config["adaptive"]
 ADAPTIVE_THRESHOLDS = {threshold_label(t): float(t) for t in ADAPTIVE["thresholds"]}
-ADAPTIVE_PATHS = ADAPTIVE["paths"] or [VALIDATION_PATH]
 ADAPTIVE_RUNS = [f"{OUT}/adaptive/{label}/{p}.h5" for label in ADAPTIVE_THRESHOLDS for p in ADAPTIVE_PATHS]
 # adaptive.report: the validation path's runs join the speed figure, the tables and the mode map
 ADAPTIVE_IN_REPORT = ADAPTIVE["report"] and REFERENCE == "fem_dem"

@@ -35,9 +35,11 @@ SURROGATE_THREADS = SURROGATE["torch_threads"]
 # one round of active learning (adaptive.active_learning): the adaptive runs at its threshold on its
 # paths write the DEM answers of their promoted points ({OUT}/adaptive/<label>/dem_points/<path>.h5), which
 # join the training sources of a second training round
+# (here, not in adaptive.smk: the training rounds below need them)
+ADAPTIVE_PATHS = config["adaptive"]["paths"] or [VALIDATION_PATH]
 ACTIVE = config["adaptive"]["active_learning"]
 ACTIVE_LABEL = threshold_label(ACTIVE["threshold"])
-ACTIVE_PATHS = ACTIVE["paths"] or config["adaptive"]["paths"] or [VALIDATION_PATH]
+ACTIVE_PATHS = ACTIVE["paths"] or ADAPTIVE_PATHS
 # the keys of `surrogate` that change a trained network (only these re-run the training rules)
 TRAINING_KEYS = [
     "hidden_layers", "hidden_units", "activation", "batch_size", "learning_rate", "epochs", "ensemble_size", "lr_schedule",

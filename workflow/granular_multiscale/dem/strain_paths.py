@@ -55,7 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import ConfigError, load_config
-from ..tensors import tensor_to_voigt, voigt_to_tensor
+from ..tensors import ENGINEERING_FACTOR, tensor_to_voigt, voigt_to_tensor
 from .worker import steps_for_increment
 
 FAMILIES = ("axisymmetric", "random_walk", "proportional", "triaxial")
@@ -260,7 +260,6 @@ def _triaxial(rng, k, count, n_steps, increment, bounds, settings, name):
 
 #: components the servo controls (σ11, σ22 to −f·p0, shear stresses to 0) and the one it imposes (ε33)
 _LATERAL, _AXIAL = np.array([0, 1, 3, 4, 5]), 2
-_ENGINEERING = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0])
 
 
 def lateral_servo(strain: np.ndarray, stress: np.ndarray, tangent: np.ndarray, axial_increment: np.ndarray,
@@ -271,7 +270,7 @@ def lateral_servo(strain: np.ndarray, stress: np.ndarray, tangent: np.ndarray, a
     (negative: compression), shear 0; each increment component is clipped to ±``largest``."""
     target = np.zeros((len(strain), _LATERAL.size))
     target[:, 0] = target[:, 1] = lateral_stress
-    d = tangent * _ENGINEERING[None, None, :]  # acts on the tensorial strain increment
+    d = tangent * ENGINEERING_FACTOR[None, None, :]  # acts on the tensorial strain increment
     rhs = target - stress[:, _LATERAL] - d[:, _LATERAL, _AXIAL] * axial_increment[:, None]
     d_ll = d[:, _LATERAL][:, :, _LATERAL]
     lateral = np.clip(np.linalg.solve(d_ll, rhs[..., None])[..., 0], -largest, largest)

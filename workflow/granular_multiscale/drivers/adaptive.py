@@ -59,6 +59,8 @@ from .fem_ml import commits_of_steps, run_keeping_partial, spread_variables, sur
 # per-step values of the set's commit log that are not sums over the commits of a load step
 LAST_OF_STEP = ("dem_points", "out_of_range_points", "out_of_range_excess")
 MAX_OF_STEP = ("dem_steps_max",)
+#: what a file of :func:`dem_trajectories` holds (the ``trajectories`` output)
+DEM_TRAJECTORY_VARIABLES = ("strain", "stress", "tangent", "history", "valid", "promoted_at")
 
 
 def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: list[str],
@@ -135,9 +137,6 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
         write_run(ds, output, config)
         logger.info("wrote %s", output)
     return ds
-
-
-DEM_TRAJECTORY_VARIABLES = ("strain", "stress", "tangent", "history", "valid", "promoted_at")
 
 
 def dem_trajectories(material: AdaptiveMaterialPointSet, problem: TriaxialProblem, run: str) -> xr.Dataset:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import checkpoint as checkpoints
 from ..data import write_run
 from ..dem.material import SETTINGS_KEYS, DemMaterialPointSet
 from ..dem.run import inertial_number
@@ -34,19 +35,6 @@ def dem_newton_config(config: dict) -> dict:
     return cfg
 
 
-
-def checkpoint_and_scenes(checkpoint: str | Path | None) -> tuple[Path | None, Path | None]:
-    """(checkpoint, folder of its RVE scene snapshots) of a DEM run; snapshots without their
-    checkpoint belong to an older, finished or abandoned run and are removed."""
-    if not checkpoint:
-        return None, None
-    checkpoint = Path(checkpoint)
-    scenes_dir = checkpoint.with_name(checkpoint.name + ".scenes")
-    if not checkpoint.exists() and scenes_dir.exists():
-        shutil.rmtree(scenes_dir)
-    return checkpoint, scenes_dir
-
-
 def run_fem_dem(config: dict, path_name: str, packing_paths: list[str], output: str,
                 checkpoint: str | None, n_workers: int, logger: logging.Logger | None = None,
                 dask_client=None):
@@ -56,7 +44,7 @@ def run_fem_dem(config: dict, path_name: str, packing_paths: list[str], output: 
     problem = TriaxialProblem.from_config(cfg)
     load_path = load_paths_from_config(cfg)[path_name]
     dem = cfg["dem"]
-    checkpoint, scenes_dir = checkpoint_and_scenes(checkpoint)
+    checkpoint, scenes_dir = checkpoints.checkpoint_and_scenes(checkpoint)
     logger.info(
         "FEM–DEM %s: %d steps, mesh %s (%d Gauss points = RVEs of %d spheres), %s executor with %d workers; "
         "strain rate %.3g /s (inertial number %.1e), steps per increment %d..%d; Newton tolerance %.1e, "

@@ -39,7 +39,6 @@ from ..dem.strain_paths import (STRESS_CONTROLLED, StrainPaths, lateral_servo, s
 from ..materials import make_material
 from ..history import HIST, history_from_sequence
 from ..tensors import COMP, TCOMP, tangent_to_upper
-from .fem_dem import checkpoint_and_scenes
 
 CHECKPOINT_FORMAT = "rve-paths-checkpoint-v1"
 
@@ -81,7 +80,7 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
     n_traj, n_steps = paths.n_trajectories, paths.n_steps
     pressure = float(config["specimen"]["confining_pressure"])
     criterion = set_section(config, set_name)["contact_loss"]
-    checkpoint, scenes_dir = checkpoint_and_scenes(checkpoint)
+    checkpoint, scenes_dir = checkpoints.checkpoint_and_scenes(checkpoint)
     counts = ", ".join(f"{(paths.family == f).sum()} {f}" for f in dict.fromkeys(paths.family))
     logger.info("RVE paths %s: %d trajectories (%s) x %d steps = %d RVE evaluations of %d spheres, largest "
                 "increment %.3g, %s executor with %d workers", set_name, n_traj, counts, n_steps, n_traj * n_steps,
