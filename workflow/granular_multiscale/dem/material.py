@@ -71,6 +71,8 @@ def packing_assignment(n_points: int, n_packings: int, seed: int) -> np.ndarray:
 
 class DemMaterialPointSet(MaterialPointSet):
     method = "dem"
+    #: load a point's scene only when it is first stepped (the hosts keep the packing's string)
+    lazy_scenes = False
 
     def __init__(
         self,
@@ -190,6 +192,7 @@ class DemMaterialPointSet(MaterialPointSet):
                 "which": self.assignment[idx].tolist(),
                 "packings": {k: self._packings[k] for k in keys},
                 "settings": self.settings,
+                "lazy": self.lazy_scenes,
             }))
         self._adopt(self.executor.call_all(msgs))
         self.conv_strain = np.zeros((self.n_points, 6))

@@ -5,9 +5,12 @@
     dem.commit(strain)       # commits the active RVEs and records EVERY point's converged strain
     dem.activate(points)     # replay: bring inactive RVEs to the last converged state
 
-What the adaptive FEM–DEM–ML set (``adaptive/``) runs its DEM points on. Every RVE is loaded
-from its packing at the start, as in FEM–DEM (:class:`DemMaterialPointSet`, whose hosts,
-executors, accounting and settings this class shares), but only the active points are driven:
+What the adaptive FEM–DEM–ML set (``adaptive/``) runs its DEM points on. Every point has an RVE
+from its packing, as in FEM–DEM (:class:`DemMaterialPointSet`, whose hosts, executors, accounting
+and settings this class shares), but a host loads a point's scene only when the point is first
+stepped (``lazy_scenes``: until then it answers with its packing's response, computed once per
+packing), so memory and start-up are those of the DEM points, not of the mesh (2000 scenes of
+1000 spheres at the paper mesh). Only the active points are driven:
 a trial sends their strain increments from their converged state and a zero increment (no DEM
 step) for the others, and a host without an active point is not called at all. The hosts hold
 the points interleaved (point i on host i mod n_hosts), so that a spatial cluster of active
@@ -63,6 +66,7 @@ SUBSET_STATE_FORMAT = "dem-subset-state-v1"
 
 class DemSubsetMaterialPointSet(DemMaterialPointSet):
     method = "dem_subset"
+    lazy_scenes = True
 
     def __init__(self, n_points: int, packings, settings: dict, **kwargs):
         if kwargs.get("snapshot_dir") is not None:

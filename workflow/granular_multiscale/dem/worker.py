@@ -74,10 +74,17 @@ class Host:
         self.stress = np.zeros((0, 6))
         self.tangent = np.zeros((0, 6, 6))
         self.n_spheres: list[int] = []
+        # scenes not loaded yet (load_packings with lazy=True): local index -> packing scene string
+        self.pending: dict[int, bytes] = {}
 
     # ---- set-up -------------------------------------------------------------------
     def _scene(self, k: int) -> None:
+        """Make scene k the current one; a scene loaded on demand (``lazy``) is loaded now."""
         self.O.switchToScene(self.scene_ids[k])
+        blob = self.pending.pop(k, None)
+        if blob is not None:
+            self.O.stringToScene(blob)
+            self._apply_settings()
 
     def _ensure_scenes(self, n: int) -> None:
         O = self.O
@@ -97,29 +104,43 @@ class Host:
 
         return stress_and_tangent(self.utils)
 
-    def load(self, gps: list[int], scenes: list[bytes], settings: dict) -> dict:
-        """Load one scene per Gauss point (YADE scene strings) and compute their response."""
+    def load(self, gps: list[int], scenes: list[bytes], settings: dict, lazy: bool = False) -> dict:
+        """Load one scene per Gauss point (YADE scene strings) and compute their response.
+
+        ``lazy``: keep the strings and load a scene when it is first stepped (:meth:`_scene`); the
+        response of each distinct string is computed once, in the first scene that uses it, which
+        is then loaded again on demand like the others. A scene is a function of its string, so loading it later gives
+        the same bits; the memory and load time are those of the scenes that are stepped."""
         self.gps = list(gps)
         self.settings = dict(settings)
         self._ensure_scenes(len(gps))
         self.stress = np.zeros((len(gps), 6))
         self.tangent = np.zeros((len(gps), 6, 6))
         self.n_spheres = []
+        self.pending = {}
+        responses: dict[bytes, tuple] = {}
         for k, blob in enumerate(scenes):
+            if lazy and blob in responses:
+                self.stress[k], self.tangent[k], n = responses[blob]
+                self.n_spheres.append(n)
+                continue
+            self.pending[k] = blob
             self._scene(k)
-            self.O.stringToScene(blob)
-            self._apply_settings()
             if not self.O.periodic:
                 raise RuntimeError(f"the RVE of Gauss point {gps[k]} is not a periodic cell")
             self.stress[k], self.tangent[k] = self._respond(k)
             self.n_spheres.append(len(self.O.bodies))
+            if lazy:
+                responses[blob] = (self.stress[k], self.tangent[k], self.n_spheres[-1])
+        if lazy:
+            self.pending = dict(enumerate(scenes))
         return self.converged()
 
-    def load_packings(self, gps: list[int], which: list, packings: dict, settings: dict) -> dict:
+    def load_packings(self, gps: list[int], which: list, packings: dict, settings: dict, lazy: bool = False) -> dict:
         """``packings``: {key: {"name": file name, "data": file bytes}} of packings saved by ``rve``;
         ``which[k]``: the packing key of ``gps[k]``. Each packing is read once and copied into
         its scenes through one scene string, so every RVE starts from the same bits whatever
-        host it lives on."""
+        host it lives on. ``lazy``: see :meth:`load`."""
         import tempfile
 
         self._ensure_scenes(max(len(gps), 1))
@@ -132,7 +153,7 @@ class Host:
                 self._scene(0)
                 self.O.load(path)
                 strings[key] = self.O.sceneToString()
-        return self.load(gps, [strings[w] for w in which], settings)
+        return self.load(gps, [strings[w] for w in which], settings, lazy)
 
     def load_snapshot(self, gps: list[int], files: list[str], settings: dict) -> dict:
         """Load the scenes of ``gps`` from snapshot files written by :meth:`snapshot`."""
@@ -161,11 +182,11 @@ class Host:
         dem_time = cpu_time = 0.0
         particle_steps = 0
         for k in range(len(self.gps)):
+            if not dstrain[k].any():  # no DEM step (and a scene loaded on demand stays unloaded)
+                continue
             self._scene(k)
             n = steps_for_increment(dstrain[k], O.dt, cfg["strain_rate"], cfg["min_steps"], cfg["max_steps"])
             steps[k] = n
-            if n == 0:
-                continue
             O.cell.velGrad = voigt_to_matrix3(dstrain[k] / (n * O.dt), self.Matrix3)
             t0, c0 = time.perf_counter(), time.process_time()
             step = O.step
@@ -195,6 +216,9 @@ class Host:
         t0 = time.perf_counter()
         blobs = {}
         for k, gp in enumerate(self.gps):
+            if k in self.pending:  # never stepped: its packing's string, re-loaded on demand
+                blobs[gp] = self.pending[k]
+                continue
             self._scene(k)
             blobs[gp] = self.O.sceneToString()
         if path is not None:
@@ -203,7 +227,8 @@ class Host:
                 pickle.dump({"gps": self.gps, "scenes": blobs}, f, protocol=pickle.HIGHEST_PROTOCOL)
             os.replace(tmp, path)
         for k, gp in enumerate(self.gps):
-            self._reload_scene(k, blobs[gp])
+            if k not in self.pending:
+                self._reload_scene(k, blobs[gp])
         return {"time": time.perf_counter() - t0, "bytes": int(sum(len(b) for b in blobs.values()))}
 
     def reload(self, gps: list[int]) -> dict:
@@ -256,7 +281,8 @@ def _read_verdict(fd: int):
 def _handle_common(host: Host, cmd: str, args: dict):
     """Commands a holder answers in place."""
     if cmd == "load_packings":
-        return host.load_packings(args["gps"], args["which"], args["packings"], args["settings"])
+        return host.load_packings(args["gps"], args["which"], args["packings"], args["settings"],
+                                  bool(args.get("lazy", False)))
     if cmd == "load_snapshot":
         return host.load_snapshot(args["gps"], args["files"], args["settings"])
     if cmd == "replay":
