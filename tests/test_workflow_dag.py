@@ -50,3 +50,18 @@ def test_adaptive_runs_join_all_only_with_adaptive_report(tmp_path):
               f"{out}/adaptive/tinf/path2.h5" in line]
     assert len(tables) == 3  # table_speedup, table_accuracy, figure_mode_map
     assert not out.exists()
+
+
+def test_the_default_scale_runs_the_adaptive_curve_in_all(tmp_path):
+    """Pass criterion: config/config.yaml (the Snakefile's own) makes `all` run the validation path
+    at each of its adaptive thresholds, and nothing else adaptive, and draw the mode map."""
+    out = tmp_path / "default"
+    command = [SNAKEMAKE, "-n", "all", "--config", f"output_dir={out}"]
+    result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output[-3000:]
+    runs = sorted(line.split("output: ")[1].split(",")[0] for line in output.splitlines()
+                  if "output: " in line and "/adaptive/" in line)
+    assert runs == [f"{out}/adaptive/t0.01/path2.h5", f"{out}/adaptive/t0.02/path2.h5"]
+    assert f"output: {out}/figures/adaptive_mode_map.png" in output
+    assert not out.exists()
