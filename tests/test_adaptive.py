@@ -82,9 +82,11 @@ def test_replayed_rve_is_bit_for_bit_the_rve_that_followed_the_strains(tmp_path_
     assert np.abs(reference - initial).max() > 1e3  # Pa: the strains did load the RVEs
 
     with DemSubsetMaterialPointSet(n, [path], SETTINGS, **kwargs) as late:
-        drive(late, strains)  # nothing active: no DEM at all
+        drive(late, strains)  # nothing active: no DEM at all, and no scene loaded (lazy_scenes)
         assert late.time_split()["particle_steps"] == 0 and np.array_equal(late.conv_stress, initial)
+        assert late.resident_scenes() == 0
         assert late.activate(range(n)) == n  # every point replays 7 commits at once
+        assert late.resident_scenes() == n
         assert np.array_equal(late.conv_stress, reference)
         # one DEM increment per commit and point: what FEM–DEM spent without detours
         assert late._step["replay_particle_steps"] == particle_steps > 0
@@ -95,6 +97,7 @@ def test_replayed_rve_is_bit_for_bit_the_rve_that_followed_the_strains(tmp_path_
         assert np.array_equal(mixed.active, [True, True, True, False])
         assert np.array_equal(mixed.conv_stress[:3], reference[:3])
         assert np.array_equal(mixed.conv_stress[3], initial[3])  # never driven: the packing's state
+        assert mixed.resident_scenes() == 3  # ... and never loaded
         # what the RVEs answered at every commit, the promoted points' past from their replay: the
         # stresses of the RVEs that followed the strains from the start; nothing for point 3
         answers = mixed.dem_responses()

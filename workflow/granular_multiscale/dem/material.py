@@ -387,6 +387,12 @@ class DemMaterialPointSet(MaterialPointSet):
         """Totals over all committed steps (same keys as ``step_info``)."""
         return dict(self.totals)
 
+    def resident_scenes(self) -> int:
+        """How many RVE scenes the hosts hold loaded (all of them, unless ``lazy_scenes``)."""
+        if self._trial is not None:
+            raise MaterialPointError("resident_scenes needs the converged state: commit or rollback first")
+        return sum(r["loaded"] for r in self.executor.call_all([("resident", {})] * len(self.slots)))
+
     def scene_strings(self) -> dict[int, bytes]:
         """Converged YADE scene string of every Gauss point (diagnostics; costs a serialisation)."""
         pending = self._trial is not None

@@ -297,6 +297,8 @@ def _handle_common(host: Host, cmd: str, args: dict):
         return host.scene_strings()
     if cmd == "converged":
         return host.converged()
+    if cmd == "resident":
+        return {"loaded": len(host.gps) - len(host.pending), "points": len(host.gps)}
     if cmd == "ping":
         return {"pid": os.getpid()}
     raise ValueError(f"unknown command {cmd!r}")

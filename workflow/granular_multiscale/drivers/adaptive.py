@@ -120,6 +120,7 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
         "dem_point_fraction": float(ds["point_mode"].mean()),
         "dem_points_final": int(ds["dem_points"][-1]),
         "dem_startup_time_s": startup,
+        "dem_n_spheres": int(dem.n_spheres.max()),
         "dem_n_workers": workers,
         "dem_executor": cfg["dem"]["executor"],
     })
