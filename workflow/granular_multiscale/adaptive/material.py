@@ -52,6 +52,22 @@ would not, so a point may be promoted early (conservative: more DEM, never less 
 ``evaluate`` is repeatable within a step only between promotions (a promotion changes the answer
 at the promoted points, monotonically, at most once per point).
 
+Correction of the surrogate points (``adaptive.correction``)
+-----------------------------------------------------------
+The surrogate also answers at the DEM points, so every evaluation with DEM points measures the
+networks' error there: the residual r = σ_RVE − σ_NN at the same strain and history. Where the
+networks are off by a similar amount over the whole specimen (an unloading branch learnt a little
+too stiff: docs/adaptive.md), that residual also holds at the surrogate points in similar states.
+With ``correction: kernel`` every surrogate point j gets σ_NN,j + Σ_i w_ji r_i over the DEM points
+i, the Nadaraya–Watson weights of a Gaussian kernel of width ``correction_length`` in the networks'
+inputs (strain and history, in units of their training range, :func:`residual_correction`):
+the residual of the DEM points in the most similar states, a smooth function of the trial. Its
+dependence on the DEM points' strains is left out of the tangent (it couples points), as is its
+dependence on the point's own strain (the weights change slowly); Newton converges on the
+residual all the same. No DEM point, or no surrogate point, leaves nothing to correct: threshold
+∞ is still FEM–ML and threshold 0 FEM–DEM, bit for bit. Anchors (``anchor_fraction``) make the
+DEM points that measure the residual from step 0 on, without replay.
+
 Recorded (:meth:`step_info` per commit, :attr:`commit_log`, :attr:`indicator_log`,
 :attr:`promoted_at`): the number of DEM points, the promotions, the DEM particle-steps of the
 trials (``particle_steps``) and of the replays (``replay_particle_steps``), and the DEM time
@@ -76,7 +92,23 @@ from ..materials.base import MaterialPointSet
 from ..surrogate.material import SurrogateMaterial, relative_spread
 
 INDICATORS = ("spread", "out_of_range", "max")
+CORRECTIONS = ("none", "kernel")
 STATE_FORMAT = "adaptive-state-v1"
+
+
+def residual_correction(x_surrogate: np.ndarray, x_dem: np.ndarray, residual: np.ndarray,
+                        length: float) -> np.ndarray:
+    """[n_s, 6] the DEM points' residual carried to the surrogate points: Nadaraya–Watson weights of a
+    Gaussian kernel of width `length` between the inputs x_surrogate [n_s, f] and x_dem [m, f] (in
+    units of the training range), applied to residual [m, 6]. The weights of a point sum to 1: as
+    `length` → 0 the residual of its nearest DEM point, `length` = inf the mean residual."""
+    if np.isinf(length):
+        return np.broadcast_to(residual.mean(axis=0), (x_surrogate.shape[0], residual.shape[1])).copy()
+    d2 = ((x_surrogate[:, None, :] - x_dem[None, :, :]) ** 2).sum(axis=-1)
+    logits = -d2 / (2.0 * length**2)
+    weights = np.exp(logits - logits.max(axis=1, keepdims=True))  # the nearest gets exp(0): no underflow to 0/0
+    weights /= weights.sum(axis=1, keepdims=True)
+    return weights @ residual
 
 
 def anchor_points(n_points: int, fraction: float, seed: int) -> np.ndarray:
@@ -92,7 +124,8 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
 
     def __init__(self, surrogate: SurrogateMaterial, dem: DemSubsetMaterialPointSet, threshold: float,
                  confining_pressure: float, indicator: str = "spread", out_of_range_weight: float = 1.0,
-                 anchors=(), logger: logging.Logger | None = None):
+                 anchors=(), logger: logging.Logger | None = None, correction: str = "none",
+                 correction_length: float = 0.05):
         super().__init__(surrogate.n_points)
         if dem.n_points != surrogate.n_points:
             raise ValueError(f"the surrogate has {surrogate.n_points} points, the DEM set {dem.n_points}")
@@ -102,6 +135,11 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
             raise ValueError(f"config key 'adaptive.indicator' must be one of {INDICATORS}, got {indicator!r}")
         if not out_of_range_weight >= 0.0:
             raise ValueError(f"config key 'adaptive.out_of_range_weight' must be >= 0, got {out_of_range_weight}")
+        if correction not in CORRECTIONS:
+            raise ValueError(f"config key 'adaptive.correction' must be one of {CORRECTIONS}, got {correction!r}")
+        if not float(correction_length) > 0.0:
+            raise ValueError(f"config key 'adaptive.correction_length' must be > 0 (or .inf), got {correction_length}")
+        self.correction, self.correction_length = correction, float(correction_length)
         self.surrogate, self.dem = surrogate, dem
         self.threshold = float(threshold)
         self.indicator = indicator
@@ -115,6 +153,7 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
         self.indicator_log: list[np.ndarray] = []  # per commit: [n] indicator at the converged strain
         self._last_strain: np.ndarray | None = None
         self._indicator_now: np.ndarray | None = None
+        self._correction_now = 0.0  # mean ‖correction‖ at the surrogate points of the last evaluation (Pa)
         self._promotions = 0
         if self.anchors.size:
             self.dem.activate(self.anchors)
@@ -149,8 +188,14 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
         if new.size:
             self._promote(new, value)
         mode = self.dem_mode
+        self._correction_now = 0.0
         if mode.any():
             dem_stress, dem_tangent = self.dem.evaluate(strain, need_tangent=need_tangent)
+            if self.correction == "kernel" and not mode.all():
+                x = self.surrogate.trial_scaled_features()
+                shift = residual_correction(x[~mode], x[mode], dem_stress[mode] - stress[mode], self.correction_length)
+                stress[~mode] += shift
+                self._correction_now = float(np.linalg.norm(shift, axis=1).mean())
             stress[mode] = dem_stress[mode]
             if tangent is not None:
                 tangent[mode] = dem_tangent[mode]
@@ -176,7 +221,7 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
         self.commits += 1
         info = dict(self.dem.step_info())
         info.update({"dem_points": float(self.dem_mode.sum()), "promotions": float(self._promotions),
-                     **self.surrogate.step_info()})
+                     "correction": self._correction_now, **self.surrogate.step_info()})
         self.commit_log.append(info)
         self.indicator_log.append(self._indicator_now.copy())
         self._promotions = 0
@@ -189,7 +234,8 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
 
     def checkpoint_key(self) -> dict:
         return {"dem": self.dem.checkpoint_key(), "threshold": self.threshold, "indicator": self.indicator,
-                "out_of_range_weight": self.out_of_range_weight, "anchors": self.anchors.tolist()}
+                "out_of_range_weight": self.out_of_range_weight, "anchors": self.anchors.tolist(),
+                "correction": self.correction, "correction_length": self.correction_length}
 
     def get_state(self) -> dict[str, Any]:
         return {

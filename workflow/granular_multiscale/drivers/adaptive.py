@@ -20,9 +20,9 @@ run's stress, DEM where the point is DEM) and (:func:`adaptive_variables`):
   the threshold);
 * per load step, summed over its commits (cut-back sub-steps included): ``promotions``,
   ``particle_steps`` (DEM trials), ``replay_particle_steps``, ``replay_time``, the time split;
-  ``dem_points`` at its end;
+  ``dem_points`` and ``correction`` (mean norm of the correction at the surrogate points, Pa) at its end;
 * attributes ``adaptive_threshold``, ``adaptive_indicator``, ``adaptive_out_of_range_weight``,
-  ``adaptive_anchor_fraction``, ``adaptive_anchors``, ``dem_particle_steps`` (trials + replays, what
+  ``adaptive_anchor_fraction``, ``adaptive_anchors``, ``adaptive_correction``, ``adaptive_correction_length``, ``dem_particle_steps`` (trials + replays, what
   compares with FEM–DEM's ``dem_particle_steps``), ``dem_trial_particle_steps``,
   ``dem_replay_particle_steps``, ``dem_point_fraction`` (DEM points / points, mean over the steps)
   and ``dem_points_final``.
@@ -57,7 +57,7 @@ from .fem_dem import dem_newton_config
 from .fem_ml import commits_of_steps, run_keeping_partial, spread_variables, surrogate_attributes, surrogate_material
 
 # per-step values of the set's commit log that are not sums over the commits of a load step
-LAST_OF_STEP = ("dem_points", "out_of_range_points", "out_of_range_excess")
+LAST_OF_STEP = ("dem_points", "out_of_range_points", "out_of_range_excess", "correction")
 MAX_OF_STEP = ("dem_steps_max",)
 #: what a file of :func:`dem_trajectories` holds (the ``trajectories`` output)
 DEM_TRAJECTORY_VARIABLES = ("strain", "stress", "tangent", "history", "valid", "promoted_at")
@@ -91,7 +91,8 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
     dem = DemSubsetMaterialPointSet.from_config(cfg, n, packing_paths, n_workers=workers, logger=logger,
                                                 dask_client=dask_client)
     material = AdaptiveMaterialPointSet(surrogate, dem, threshold, problem.confining_pressure,
-                                        section["indicator"], float(section["out_of_range_weight"]), anchors, logger)
+                                        section["indicator"], float(section["out_of_range_weight"]), anchors, logger,
+                                        section["correction"], float(section["correction_length"]))
     startup = time.perf_counter() - t0
     logger.info(
         "adaptive FEM–DEM–ML %s: %d steps, %d material points, threshold %g on indicator %s, %d anchors; NNσ %s "
@@ -113,6 +114,8 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
         "adaptive_out_of_range_weight": float(section["out_of_range_weight"]),
         "adaptive_anchor_fraction": float(section["anchor_fraction"]),
         "adaptive_anchors": anchors.size,
+        "adaptive_correction": section["correction"],
+        "adaptive_correction_length": float(section["correction_length"]),
         "dem_particle_steps": trial + replay,
         "dem_trial_particle_steps": trial,
         "dem_replay_particle_steps": replay,

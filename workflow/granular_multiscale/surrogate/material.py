@@ -187,6 +187,7 @@ class SurrogateMaterial(MaterialPointSet):
         scale[:n_strain] = max(span[0], scale[:n_strain].max())
         margin = tolerance * span + _ROUNDOFF * scale
         self._lo, self._hi = lo - margin, hi + margin
+        self._x_min = lo
         self._span = np.where(span > 0, span, 1.0)
         self.feature_names = self.sigma_model.feature_names
 
@@ -229,6 +230,7 @@ class SurrogateMaterial(MaterialPointSet):
         self._check_response(stress, tangent_np, self.method)
         self._trial = strain.copy()
         self._trial_members = members  # the members' NNσ: the spread, if this trial is committed
+        self._trial_features = x.numpy()
         self._trial_out_of_range = self._out_of_range(x.numpy())
         return stress, tangent_np
 
@@ -286,6 +288,13 @@ class SurrogateMaterial(MaterialPointSet):
             raise RuntimeError(f"{type(self).__name__}.trial_uncertainty() needs an evaluation first")
         _, excess = self._trial_out_of_range
         return self._member_spread(self._trial_members), excess.max(axis=1, initial=0.0)
+
+    def trial_scaled_features(self) -> np.ndarray:
+        """[n, features] the network inputs of the last evaluation, in units of their training range
+        from its minimum (the strains share one range, as for the out-of-range excess): 0..1 inside it."""
+        if self._trial is None:
+            raise RuntimeError(f"{type(self).__name__}.trial_scaled_features() needs an evaluation first")
+        return (self._trial_features - self._x_min) / self._span
 
     @property
     def stress_spread(self) -> np.ndarray:
