@@ -27,7 +27,8 @@ share is quoted in point-steps, and in particle-steps against the FEM–DEM esti
 --default-fem-dem (the default-scale FEM–DEM run of the same path: particle-steps per RVE sphere).
 
     .venv/bin/python bench/bench_adaptive_paper.py [--models results/models] [--packing FILE]
-        [--threshold 0.02] [--predict 0.05 0.03 0.02 0.015 0.01] [--path path2] [--workers 2]
+        [--threshold 0.02] [--variant anchor_fraction=0.02,correction=kernel]
+        [--predict 0.05 0.03 0.02 0.015 0.01] [--path path2] [--workers 2]
         [--elements 5 5 10] [--default-fem-dem results/fem_dem/path2.h5] [--reference FILE]
         [--out results/paper_adaptive] [--json out.json]
 """
@@ -44,10 +45,12 @@ from pathlib import Path
 import numpy as np
 
 from granular_multiscale.analysis.metrics import curve_errors
-from granular_multiscale.config import load_config
+from granular_multiscale.config import load_config, validate_config
 from granular_multiscale.data import read_run
 from granular_multiscale.drivers.adaptive import run_adaptive
 from granular_multiscale.drivers.fem_ml import run_fem_ml
+
+from bench_adaptive_variants import parse_variant, variant_name
 
 
 def promotion_forecast(fem_ml, thresholds) -> list[dict]:
@@ -79,6 +82,8 @@ def main() -> dict:
     parser.add_argument("--models", default="results/models", help="folder with nn_sigma.pt and nn_tangent.pt")
     parser.add_argument("--packing", default="results/paper/rve/packing_0.yade.gz", help="RVE packing (1000 spheres)")
     parser.add_argument("--threshold", type=float, default=0.02, help="threshold of the adaptive run")
+    parser.add_argument("--variant", default="", help="other adaptive settings, key=value,... (e.g. "
+                        "anchor_fraction=0.02,correction=kernel; the rest from the config)")
     parser.add_argument("--predict", type=float, nargs="*", default=[0.05, 0.03, 0.02, 0.015, 0.01],
                         help="thresholds whose promotions the FEM–ML run forecasts")
     parser.add_argument("--path", default="path2")
@@ -96,7 +101,10 @@ def main() -> dict:
     for name in ("granular_multiscale",):
         logging.getLogger(name).setLevel(logging.WARNING)
     config = load_config(args.config)
-    paper = dict(config, specimen=dict(config["specimen"], elements=list(args.elements)))
+    paper = dict(config, specimen=dict(config["specimen"], elements=list(args.elements)),
+                 adaptive={**config["adaptive"], **parse_variant(args.variant)})
+    paper["adaptive"].pop("threshold")
+    paper = validate_config(paper)
     models = Path(args.models)
     sigma, tangent_model = models / "nn_sigma.pt", models / "nn_tangent.pt"
     for f in (sigma, tangent_model, Path(args.packing)):
@@ -119,14 +127,16 @@ def main() -> dict:
               f"{100 * row['dem_point_fraction']:5.1f} % of point-steps")
 
     t0 = time.perf_counter()
+    name = f"{args.path}_{variant_name({**parse_variant(args.variant), 'threshold': args.threshold})}"
     run = run_adaptive(paper, args.path, args.threshold, [args.packing], sigma, tangent_model, tangent,
-                       output=out / f"{args.path}_t{args.threshold:g}.h5",
-                       checkpoint=out / f"{args.path}_t{args.threshold:g}.ckpt", n_workers=args.workers, logger=logger)
+                       output=out / f"{name}.h5", checkpoint=out / f"{name}.ckpt", n_workers=args.workers,
+                       logger=logger)
     wall = time.perf_counter() - t0
     dem_points = run["point_mode"].values[1:].astype(bool)
     stress_diff = np.linalg.norm(run["stress"].values[1:] - fem_ml["stress"].values[1:], axis=-1)
     result = {
-        "gauss_points": int(n_points), "steps": int(n_steps), "threshold": args.threshold,
+        "gauss_points": int(n_points), "steps": int(n_steps), "threshold": args.threshold, "variant": args.variant,
+        "anchors": int(run.attrs["adaptive_anchors"]), "correction": run.attrs["adaptive_correction"],
         "fem_ml_wall_s": fem_ml_wall, "adaptive_wall_s": wall, "adaptive_solver_s": float(run.attrs["time_run_s"]),
         "promoted": int(run.attrs["dem_points_final"]),
         "dem_point_fraction": float(run.attrs["dem_point_fraction"]),

@@ -109,8 +109,8 @@ class Host:
 
         ``lazy``: keep the strings and load a scene when it is first stepped (:meth:`_scene`); the
         response of each distinct string is computed once, in the first scene that uses it, which
-        is then loaded again on demand like the others. A scene is a function of its string, so loading it later gives
-        the same bits; the memory and load time are those of the scenes that are stepped."""
+        is then loaded again on demand like the others. A scene is a function of its string, so
+        loading it later gives the same bits; memory and load time are those of the scenes stepped."""
         self.gps = list(gps)
         self.settings = dict(settings)
         self._ensure_scenes(len(gps))
