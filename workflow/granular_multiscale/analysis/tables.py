@@ -30,6 +30,7 @@ SPEEDUP_COLUMNS = (
     "unloading_step",
     "reloading_step",
     "rves",
+    "dem_particle_steps",
     "wall_time_s",
     "wall_time_h",
     "newton_iterations",
@@ -128,6 +129,8 @@ def describe_run(ds: xr.Dataset, method: str, path: str, source: str = "this run
         "unloading_step": first_step(phases, "unloading"),
         "reloading_step": first_step(phases, "reloading"),
         "rves": material_points_evaluated(ds),
+        # DEM work in particle-steps (trials and replays): machine-independent, unlike the wall time
+        "dem_particle_steps": float(ds.attrs.get("dem_particle_steps", 0.0)),
         "wall_time_s": wall,
         "wall_time_h": wall / 3600.0,
         "newton_iterations": int(iterations[1:].sum()),
@@ -146,6 +149,7 @@ def paper_rows(reference: Mapping) -> list[dict]:
         "unloading_step": reference["unloading_step"],
         "reloading_step": reference["reloading_step"],
         "rves": reference["rves"],
+        "dem_particle_steps": None,
         "newton_iterations": None,
         "newton_per_step": None,
     }
