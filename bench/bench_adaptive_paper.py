@@ -30,7 +30,7 @@ share is quoted in point-steps, and in particle-steps against the FEM–DEM esti
         [--threshold 0.02] [--variant anchor_fraction=0.02,correction=kernel]
         [--predict 0.05 0.03 0.02 0.015 0.01] [--path path2] [--workers 2]
         [--elements 5 5 10] [--default-fem-dem results/fem_dem/path2.h5] [--reference FILE]
-        [--out results/paper_adaptive] [--json out.json]
+        [--out results/paper_adaptive] [--json out.json] [--forecast-only]
 """
 
 from __future__ import annotations
@@ -94,6 +94,7 @@ def main() -> dict:
     parser.add_argument("--reference", default=None, help="FEM–DEM run of this mesh and path, if one exists")
     parser.add_argument("--out", default="results/paper_adaptive", help="folder of the run files and the checkpoint")
     parser.add_argument("--json", default=None, help="write the numbers to this file")
+    parser.add_argument("--forecast-only", action="store_true", help="stop after the FEM–ML run and its forecast")
     args = parser.parse_args()
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
@@ -125,6 +126,8 @@ def main() -> dict:
     for row in forecast:
         print(f"  threshold {row['threshold']:<6g} {row['promoted']:5d} points, first at step {row['median_first_step']:5.1f}, "
               f"{100 * row['dem_point_fraction']:5.1f} % of point-steps")
+    if args.forecast_only:
+        return {"fem_ml_wall_s": fem_ml_wall, "forecast": forecast}
 
     t0 = time.perf_counter()
     name = f"{args.path}_{variant_name({**parse_variant(args.variant), 'threshold': args.threshold})}"

@@ -34,6 +34,7 @@ from granular_multiscale.analysis.metrics import curve_errors
 from granular_multiscale.config import validate_config
 from granular_multiscale.data import read_run
 from granular_multiscale.drivers.adaptive import run_adaptive
+from granular_multiscale.drivers.fem_ml import run_fem_ml
 
 
 def parse_variant(text: str) -> dict:
@@ -93,14 +94,15 @@ def main() -> pd.DataFrame:
     sigma, tangent_model = out / "models" / "nn_sigma.pt", out / "models" / "nn_tangent.pt"
     packings = sorted(str(p) for p in (out / "rve").glob("packing_*.yade.gz"))
     tangent = config["surrogate"]["tangent"]
-    needed = [out / kind / f"{p}.h5" for p in args.paths for kind in ("fem_dem", "fem_ml")]
-    for f in (sigma, tangent_model, *needed):
+    for f in (sigma, tangent_model, *[out / "fem_dem" / f"{p}.h5" for p in args.paths]):
         if not Path(f).is_file():
             raise SystemExit(f"bench_adaptive_variants: {f} not found: run the pipeline (module docstring) first")
     rows = []
     for path in args.paths:
         reference = read_run(out / "fem_dem" / f"{path}.h5")
-        fem_ml = read_run(out / "fem_ml" / f"{path}.h5")  # the pipeline's
+        file = out / "fem_ml" / f"{path}.h5"  # the pipeline's, or the same run made here
+        fem_ml = read_run(file) if file.is_file() else run_fem_ml(config, path, sigma, tangent_model, tangent,
+                                                                  progress=False)
         rows.append({"path": path, "variant": "FEM–ML", **measure(reference, fem_ml, float(fem_ml.attrs["time_run_s"]))})
         print(rows[-1], flush=True)
         for text in args.variant:
