@@ -98,7 +98,7 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
         "adaptive FEM–DEM–ML %s: %d steps, %d material points, threshold %g on indicator %s, %d anchors; NNσ %s "
         "(ensemble of %d, %s tangent); RVEs of %d spheres on %d %s workers (ready in %.1f s); Newton tolerance %.1e",
         path_name, paths[path_name].n_steps, n, threshold, section["indicator"], anchors.size, sigma_model,
-        surrogate.ensemble_size, tangent, cfg["dem"]["n_spheres"], workers, cfg["dem"]["executor"], startup,
+        surrogate.ensemble_size, tangent, int(dem.n_spheres.max()), workers, cfg["dem"]["executor"], startup,
         cfg["newton"]["tolerance"],
     )
     with material:
