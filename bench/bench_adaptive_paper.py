@@ -99,8 +99,7 @@ def main() -> dict:
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
     logger = logging.getLogger("bench_adaptive_paper")
-    for name in ("granular_multiscale",):
-        logging.getLogger(name).setLevel(logging.WARNING)
+    logging.getLogger("granular_multiscale").setLevel(logging.WARNING)  # the run's own log: this bench's logger
     config = load_config(args.config)
     paper = dict(config, specimen=dict(config["specimen"], elements=list(args.elements)),
                  adaptive={**config["adaptive"], **parse_variant(args.variant)})
