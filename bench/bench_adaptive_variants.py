@@ -38,16 +38,22 @@ from granular_multiscale.drivers.fem_ml import run_fem_ml
 
 
 def parse_variant(text: str) -> dict:
-    """'anchor_fraction=0.1,correction=kernel,threshold=inf' -> {key: value} (YAML scalars)."""
+    """'anchor_fraction=0.1,correction=kernel,threshold=inf,anchor_seed=3' -> {key: value}: integers,
+    numbers (inf, .inf) and strings."""
     out = {}
     for item in filter(None, text.split(",")):
         key, sep, value = item.partition("=")
         if not sep:
             raise SystemExit(f"bench_adaptive_variants: variant item {item!r} is not key=value")
-        try:
-            out[key.strip()] = float(value)  # 0.1, inf, .inf
-        except ValueError:
-            out[key.strip()] = float(value.replace(".inf", "inf")) if value.strip() == ".inf" else value.strip()
+        value = value.strip()
+        for kind in (int, float):
+            try:
+                out[key.strip()] = kind(value.replace(".inf", "inf"))
+                break
+            except ValueError:
+                continue
+        else:
+            out[key.strip()] = value
     out.setdefault("threshold", float("inf"))
     return out
 

@@ -26,12 +26,12 @@ import torch
 import yaml
 from dem_fixtures import ROOT, SETTINGS, packing, tiny_config
 
-from granular_multiscale.adaptive.material import residual_correction
+from granular_multiscale.adaptive.material import anchor_points, residual_correction
 from granular_multiscale.analysis.metrics import curve_errors
 from granular_multiscale.data import read_run
 from granular_multiscale.dem.material import DemMaterialPointSet
 from granular_multiscale.dem.subset import DemSubsetMaterialPointSet
-from granular_multiscale.drivers.adaptive import DEM_TRAJECTORY_VARIABLES, run_adaptive
+from granular_multiscale.drivers.adaptive import DEM_TRAJECTORY_VARIABLES, configured_anchors, run_adaptive
 from granular_multiscale.drivers.fem_dem import dem_newton_config, run_fem_dem
 from granular_multiscale.drivers.fem_ml import run_fem_ml
 from granular_multiscale.materials.elastoplastic import Elastoplastic
@@ -143,6 +143,18 @@ def test_residual_correction_weights():
     np.testing.assert_allclose(halfway[0], residual[:2].mean(axis=0), rtol=1e-12)
     far = residual_correction(np.array([[100.0, 0.0]]), two, residual[:2], 0.01)
     np.testing.assert_array_equal(far[0], residual[1])
+
+
+def test_anchor_seed_draws_other_anchors_of_the_same_share(tmp_path):
+    """adaptive.anchor_seed null: the anchors are drawn with the config's seed; a seed of its own
+    draws another set of the same size (the bench of the anchors' draw relies on both)."""
+    config = tiny_config(tmp_path, {"p": PATH})
+    config["adaptive"]["anchor_fraction"] = 0.05
+    by_config_seed, seed = configured_anchors({**config, "seed": 7}, 128)
+    assert seed == 7 and np.array_equal(by_config_seed, anchor_points(128, 0.05, 7)) and by_config_seed.size == 6
+    own, seed = configured_anchors({**config, "seed": 7, "adaptive": {**config["adaptive"], "anchor_seed": 1}}, 128)
+    assert seed == 1 and own.size == 6 and not np.array_equal(own, by_config_seed)
+    assert np.array_equal(own, anchor_points(128, 0.05, 1))
 
 
 # -- the adaptive set in the FEM solver --------------------------------------------------------------

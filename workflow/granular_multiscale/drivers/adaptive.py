@@ -22,7 +22,8 @@ run's stress, DEM where the point is DEM) and (:func:`adaptive_variables`):
   ``particle_steps`` (DEM trials), ``replay_particle_steps``, ``replay_time``, the time split;
   ``dem_points`` and ``correction`` (mean norm of the correction at the surrogate points, Pa) at its end;
 * attributes ``adaptive_threshold``, ``adaptive_indicator``, ``adaptive_out_of_range_weight``,
-  ``adaptive_anchor_fraction``, ``adaptive_anchors``, ``adaptive_correction``, ``adaptive_correction_length``, ``dem_particle_steps`` (trials + replays, what
+  ``adaptive_anchor_fraction``, ``adaptive_anchors``, ``adaptive_anchor_seed``, ``adaptive_correction``,
+  ``adaptive_correction_length``, ``dem_particle_steps`` (trials + replays, what
   compares with FEM–DEM's ``dem_particle_steps``), ``dem_trial_particle_steps``,
   ``dem_replay_particle_steps``, ``dem_point_fraction`` (DEM points / points, mean over the steps)
   and ``dem_points_final``.
@@ -63,6 +64,14 @@ MAX_OF_STEP = ("dem_steps_max",)
 DEM_TRAJECTORY_VARIABLES = ("strain", "stress", "tangent", "history", "valid", "promoted_at")
 
 
+def configured_anchors(config: dict, n_points: int) -> tuple[np.ndarray, int]:
+    """The anchor points of a validated config's ``adaptive`` section and the seed that drew them
+    (``adaptive.anchor_seed``, or the config's ``seed`` where that is null)."""
+    section = config["adaptive"]
+    seed = int(config["seed"] if section["anchor_seed"] is None else section["anchor_seed"])
+    return anchor_points(n_points, float(section["anchor_fraction"]), seed), seed
+
+
 def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: list[str],
                  sigma_model: str | Path, tangent_model: str | Path | None, tangent: str,
                  output: str | Path | None = None, checkpoint: str | Path | None = None,
@@ -82,7 +91,7 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
     problem = TriaxialProblem.from_config(cfg)
     n = problem.n_material_points
     workers = int(n_workers or cfg["dem"]["n_workers"])
-    anchors = anchor_points(n, float(section["anchor_fraction"]), int(cfg["seed"]))
+    anchors, anchor_seed = configured_anchors(cfg, n)
     t0 = time.perf_counter()
     surrogate = surrogate_material(cfg, n, sigma_model, tangent_model, tangent, logger)
     if section["indicator"] == "spread" and surrogate.ensemble_size == 1 and 0 < threshold < np.inf:
@@ -114,6 +123,7 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
         "adaptive_out_of_range_weight": float(section["out_of_range_weight"]),
         "adaptive_anchor_fraction": float(section["anchor_fraction"]),
         "adaptive_anchors": anchors.size,
+        "adaptive_anchor_seed": int(anchor_seed),
         "adaptive_correction": section["correction"],
         "adaptive_correction_length": float(section["correction_length"]),
         "dem_particle_steps": trial + replay,
