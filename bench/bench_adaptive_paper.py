@@ -140,7 +140,8 @@ def main() -> dict:
         "gauss_points": int(n_points), "steps": int(n_steps), "threshold": args.threshold, "variant": args.variant,
         "anchors": int(run.attrs["adaptive_anchors"]), "correction": run.attrs["adaptive_correction"],
         "fem_ml_wall_s": fem_ml_wall, "adaptive_wall_s": wall, "adaptive_solver_s": float(run.attrs["time_run_s"]),
-        "promoted": int(run.attrs["dem_points_final"]),
+        "dem_points_final": int(run.attrs["dem_points_final"]),
+        "promoted": int(run.attrs["dem_points_final"]) - int(run.attrs["adaptive_anchors"]),
         "dem_point_fraction": float(run.attrs["dem_point_fraction"]),
         "dem_particle_steps": float(run.attrs["dem_particle_steps"]),
         "dem_trial_particle_steps": float(run.attrs["dem_trial_particle_steps"]),
@@ -162,7 +163,8 @@ def main() -> dict:
         result["fem_ml_top_force_vs_reference_pct_of_peak"] = top_force_difference(reference, fem_ml)
 
     print(f"adaptive FEM–DEM–ML {args.path} at threshold {args.threshold:g}: {wall:.0f} s wall "
-          f"(goal: under 30 min), {result['promoted']} of {n_points} points promoted, "
+          f"(goal: under 30 min), {result['dem_points_final']} of {n_points} points in DEM at the end "
+          f"({result['anchors']} anchors, {result['promoted']} promoted), "
           f"{100 * result['dem_point_fraction']:.2f} % of point-steps in DEM")
     print(f"  DEM particle-steps {result['dem_particle_steps']:.3g} (trials {result['dem_trial_particle_steps']:.3g}, "
           f"replays {result['dem_replay_particle_steps']:.3g})" + (
