@@ -123,7 +123,7 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
         "adaptive_out_of_range_weight": float(section["out_of_range_weight"]),
         "adaptive_anchor_fraction": float(section["anchor_fraction"]),
         "adaptive_anchors": anchors.size,
-        "adaptive_anchor_seed": int(anchor_seed),
+        "adaptive_anchor_seed": anchor_seed,
         "adaptive_correction": section["correction"],
         "adaptive_correction_length": float(section["correction_length"]),
         "dem_particle_steps": trial + replay,
