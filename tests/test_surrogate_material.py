@@ -99,7 +99,9 @@ def test_anchored_networks_reproduce_the_fresh_state(models, data):
     sigma, nd = models
     fresh = data[0].isel(step=0)
     stress, D = SurrogateMaterial(3, sigma, nd, tangent="nn").evaluate(np.zeros((3, 6)))
-    np.testing.assert_allclose(stress, np.tile(fresh.stress.values.mean(axis=0), (3, 1)), rtol=1e-12)
+    # exact up to round-off: the network's answer at zero, evaluated in another batch than when the
+    # offset was fixed, may differ in its last bit, which leaves ~1e-12 Pa where the stress is 0
+    np.testing.assert_allclose(stress, np.tile(fresh.stress.values.mean(axis=0), (3, 1)), rtol=1e-12, atol=1e-12 * 1e5)
     np.testing.assert_allclose(stress[0], [-1e5, -1e5, -1e5, 0, 0, 0], atol=1e-6)
     np.testing.assert_allclose(D[0], tangent_from_upper(fresh.tangent.values.mean(axis=0)), rtol=1e-10, atol=1e-3)
     raw, _ = SurrogateMaterial(3, sigma, nd, anchor_initial_state=False).evaluate(np.zeros((3, 6)))
