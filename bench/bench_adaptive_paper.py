@@ -141,7 +141,7 @@ def main() -> dict:
         "anchors": int(run.attrs["adaptive_anchors"]), "correction": run.attrs["adaptive_correction"],
         "fem_ml_wall_s": fem_ml_wall, "adaptive_wall_s": wall, "adaptive_solver_s": float(run.attrs["time_run_s"]),
         "dem_points_final": int(run.attrs["dem_points_final"]),
-        "promoted": int(run.attrs["dem_points_final"]) - int(run.attrs["adaptive_anchors"]),
+        "promoted": int(run["promotions"].sum()),
         "dem_point_fraction": float(run.attrs["dem_point_fraction"]),
         "dem_particle_steps": float(run.attrs["dem_particle_steps"]),
         "dem_trial_particle_steps": float(run.attrs["dem_trial_particle_steps"]),

@@ -46,14 +46,13 @@ def parse_variant(text: str) -> dict:
         if not sep:
             raise SystemExit(f"bench_adaptive_variants: variant item {item!r} is not key=value")
         value = value.strip()
-        for kind in (int, float):
+        try:
+            out[key.strip()] = int(value)  # anchor_seed
+        except ValueError:
             try:
-                out[key.strip()] = kind(value.replace(".inf", "inf"))
-                break
+                out[key.strip()] = float(value.replace(".inf", "inf"))  # 0.1, inf, .inf
             except ValueError:
-                continue
-        else:
-            out[key.strip()] = value
+                out[key.strip()] = value
     out.setdefault("threshold", float("inf"))
     return out
 
