@@ -35,7 +35,7 @@ def test_round_trip_keeps_every_value_and_label(run, tmp_path):
     assert list(back.tcomp.values) == list(TCOMP)
     assert list(back.hist.values) == list(HIST)
     assert back.sizes == {"step": 58, "gp": 16, "comp": 6, "tcomp": 21, "hist": 5, "node": 12, "xyz": 3,
-                          "iteration": ds.sizes["iteration"]}
+                          "iteration": ds.sizes["iteration"], "element": 2, "vertex": 8}
     assert back.attrs["method"] == "elastoplastic"
     assert back.stress.attrs["units"] == "Pa" and back.top_force.attrs["units"] == "N"
     assert run_config(back) == config

@@ -49,7 +49,7 @@ def imported_subpackages(path: Path) -> set[str]:
 
 def test_import_scanner_sees_relative_and_absolute_imports(tmp_path):
     assert imported_subpackages(PACKAGE / "drivers" / "fem_dem.py") >= {"fem", "dem", "data", "paths"}
-    assert "materials" in imported_subpackages(PACKAGE / "drivers" / "reference.py")
+    assert "materials" in imported_subpackages(PACKAGE / "drivers" / "problems.py")
 
 
 @pytest.mark.parametrize("layer", sorted(FORBIDDEN))

@@ -96,5 +96,17 @@ def number_cycles(phases) -> np.ndarray:
     return np.asarray(labels)
 
 
-def load_paths_from_config(config: dict) -> dict[str, LoadPath]:
-    return {name: LoadPath.from_config(name, entry) for name, entry in config["load_paths"].items()}
+def load_paths_from_config(config: dict, problem: str = "triaxial") -> dict[str, LoadPath]:
+    """The load paths of a problem: the triaxial specimen's ``load_paths``, or those of the
+    problem's section (``biaxial.load_paths``, ``footing.load_paths``)."""
+    if problem == "triaxial":
+        entries, key = config["load_paths"], "load_paths"
+    else:
+        entries, key = config[problem]["load_paths"], f"{problem}.load_paths"
+    paths = {}
+    for name, entry in entries.items():
+        try:
+            paths[name] = LoadPath.from_config(name, entry)
+        except LoadPathError as error:
+            raise LoadPathError(str(error).replace("'load_paths.", f"'{key}.", 1)) from None
+    return paths

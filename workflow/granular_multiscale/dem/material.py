@@ -69,6 +69,13 @@ def packing_assignment(n_points: int, n_packings: int, seed: int) -> np.ndarray:
     return np.random.default_rng(seed).integers(0, n_packings, n_points)
 
 
+def assignment_seed(config: dict) -> int:
+    """The seed of the packing assignment of a validated config: ``dem.assignment_seed``, or the
+    config's ``seed`` where that is null."""
+    seed = config["dem"].get("assignment_seed")
+    return int(config["seed"] if seed is None else seed)
+
+
 class DemMaterialPointSet(MaterialPointSet):
     method = "dem"
     #: load a point's scene only when it is first stepped (the hosts keep the packing's string)
@@ -143,14 +150,19 @@ class DemMaterialPointSet(MaterialPointSet):
         snapshot_dir: str | Path | None = None,
         logger: logging.Logger | None = None,
         dask_client=None,
+        assignment: Sequence[int] | None = None,
     ) -> "DemMaterialPointSet":
+        """The set of a validated config; ``assignment`` (which of ``packings`` each point starts
+        from) defaults to a random pick among them with ``dem.assignment_seed``."""
         dem = config["dem"]
         workers = n_workers if n_workers is not None else dem["n_workers"]
+        if assignment is None:
+            assignment = packing_assignment(n_points, len(packings), assignment_seed(config))
         return cls(
             n_points,
             packings,
             {k: dem[k] for k in SETTINGS_KEYS},
-            assignment=packing_assignment(n_points, len(packings), config["seed"]),
+            assignment=assignment,
             executor=dem["executor"],
             n_workers=workers,
             dask_scheduler=dem["dask_scheduler"] or None,
@@ -162,8 +174,10 @@ class DemMaterialPointSet(MaterialPointSet):
 
     @staticmethod
     def _make_slots(n_points: int, n_slots: int) -> list[np.ndarray]:
-        """The Gauss points of each host: contiguous blocks."""
-        return list(np.array_split(np.arange(n_points), n_slots))
+        """The Gauss points of each host, interleaved: point i on host i mod n_slots. The busy points
+        cluster in space (a shear band, the soil under a footing) and so in the element order; an
+        RVE's answer does not depend on its host."""
+        return [np.arange(j, n_points, n_slots) for j in range(n_slots)]
 
     def _slot_messages(self, cmd: str, per_point: dict[str, np.ndarray] | None = None, common: dict | None = None):
         msgs = []

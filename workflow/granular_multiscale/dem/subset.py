@@ -76,11 +76,6 @@ class DemSubsetMaterialPointSet(DemMaterialPointSet):
         self.strain_record: list[np.ndarray] = [np.zeros((self.n_points, 6))]  # [0]: before the first commit
         self._start_response_record(0)
 
-    @staticmethod
-    def _make_slots(n_points: int, n_slots: int) -> list[np.ndarray]:
-        """Interleaved: point i on host i mod n_slots (active points cluster in space)."""
-        return [np.arange(j, n_points, n_slots) for j in range(n_slots)]
-
     def _start_response_record(self, commits: int) -> None:
         """The DEM answers known after a (re)load of the packings: the consolidated state at commit 0
         for every point, NaN at the `commits` commits after it (filled by replays and commits)."""

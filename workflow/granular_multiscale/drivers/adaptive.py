@@ -1,4 +1,4 @@
-"""Adaptive FEM–DEM–ML runs: the triaxial solver with :class:`AdaptiveMaterialPointSet` at the
+"""Adaptive FEM–DEM–ML runs: the FEM solver of any problem with :class:`AdaptiveMaterialPointSet` at the
 Gauss points (the surrogate where it is sure, a YADE RVE where it is not; ``adaptive/material.py``).
 
     run_adaptive(config, path_name, threshold, packing_paths, sigma_model, tangent_model, tangent,
@@ -28,7 +28,7 @@ run's stress, DEM where the point is DEM) and (:func:`adaptive_variables`):
   ``dem_replay_particle_steps``, ``dem_point_fraction`` (DEM points / points, mean over the steps)
   and ``dem_points_final``.
 
-Checkpoint: that of every FEM run (``TriaxialProblem.run``), holding the set's state; the DEM
+Checkpoint: that of every FEM run (``BoundaryValueProblem.run``), holding the set's state; the DEM
 points resume by replay, bit for bit.
 
 What the RVEs answered (``trajectories`` output, :func:`dem_trajectories`): one ``gp`` per point
@@ -50,12 +50,12 @@ import xarray as xr
 from ..adaptive.material import AdaptiveMaterialPointSet, anchor_points
 from ..data import write_run
 from ..dem.subset import DemSubsetMaterialPointSet
-from ..fem.triaxial import TriaxialProblem
+from ..fem.problem import BoundaryValueProblem
 from ..history import HIST, history_from_sequence
-from ..paths import load_paths_from_config
 from ..tensors import COMP, TCOMP, tangent_to_upper
 from .fem_dem import dem_newton_config
 from .fem_ml import commits_of_steps, run_keeping_partial, spread_variables, surrogate_attributes, surrogate_material
+from .problems import dem_packings, problem_and_path
 
 # per-step values of the set's commit log that are not sums over the commits of a load step
 LAST_OF_STEP = ("dem_points", "out_of_range_points", "out_of_range_excess", "correction")
@@ -77,19 +77,18 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
                  output: str | Path | None = None, checkpoint: str | Path | None = None,
                  n_workers: int | None = None, logger: logging.Logger | None = None,
                  allow_partial: bool = False, dask_client=None,
-                 trajectories: str | Path | None = None) -> xr.Dataset:
+                 trajectories: str | Path | None = None, problem: str = "triaxial",
+                 weak_packing: str | None = None) -> xr.Dataset:
     """One adaptive run of load path `path_name` at `threshold` (validated config); returns the run
     Dataset and writes it to `output` (if given), and what its RVEs answered to `trajectories` (if
     given; :func:`dem_trajectories`). A step that does not converge raises ConvergenceError, or with
     `allow_partial` keeps the converged steps (``completed = 0``)."""
     logger = logger or logging.getLogger("granular_multiscale.drivers.adaptive")
     cfg = dem_newton_config(config)
-    paths = load_paths_from_config(cfg)
-    if path_name not in paths:
-        raise KeyError(f"unknown load path {path_name!r}; config key 'load_paths' defines {sorted(paths)}")
+    bvp, load_path = problem_and_path(cfg, problem, path_name)
+    packings, assignment = dem_packings(bvp, cfg, packing_paths, weak_packing)
     section = cfg["adaptive"]
-    problem = TriaxialProblem.from_config(cfg)
-    n = problem.n_material_points
+    n = bvp.n_material_points
     workers = int(n_workers or cfg["dem"]["n_workers"])
     anchors, anchor_seed = configured_anchors(cfg, n)
     t0 = time.perf_counter()
@@ -97,22 +96,22 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
     if section["indicator"] == "spread" and surrogate.ensemble_size == 1 and 0 < threshold < np.inf:
         raise ValueError(f"config key 'adaptive.indicator': 'spread' needs an ensemble (surrogate.ensemble_size >= 2); "
                          f"the one network of {sigma_model} has no spread and would never promote a point")
-    dem = DemSubsetMaterialPointSet.from_config(cfg, n, packing_paths, n_workers=workers, logger=logger,
-                                                dask_client=dask_client)
-    material = AdaptiveMaterialPointSet(surrogate, dem, threshold, problem.confining_pressure,
+    dem = DemSubsetMaterialPointSet.from_config(cfg, n, packings, n_workers=workers, logger=logger,
+                                                dask_client=dask_client, assignment=assignment)
+    material = AdaptiveMaterialPointSet(surrogate, dem, threshold, bvp.confining_pressure,
                                         section["indicator"], float(section["out_of_range_weight"]), anchors, logger,
                                         section["correction"], float(section["correction_length"]))
     startup = time.perf_counter() - t0
     logger.info(
-        "adaptive FEM–DEM–ML %s: %d steps, %d material points, threshold %g on indicator %s, %d anchors; NNσ %s "
+        "adaptive FEM–DEM–ML %s %s: %d steps, %d material points, threshold %g on indicator %s, %d anchors; NNσ %s "
         "(ensemble of %d, %s tangent); RVEs of %d spheres on %d %s workers (ready in %.1f s); Newton tolerance %.1e",
-        path_name, paths[path_name].n_steps, n, threshold, section["indicator"], anchors.size, sigma_model,
+        problem, path_name, load_path.n_steps, n, threshold, section["indicator"], anchors.size, sigma_model,
         surrogate.ensemble_size, tangent, int(dem.n_spheres.max()), workers, cfg["dem"]["executor"], startup,
         cfg["newton"]["tolerance"],
     )
     with material:
-        ds = run_keeping_partial(problem, material, paths[path_name], checkpoint, logger, True, allow_partial,
-                                 f"adaptive {path_name} at threshold {threshold:g}")
+        ds = run_keeping_partial(bvp, material, load_path, checkpoint, logger, True, allow_partial,
+                                 f"adaptive {problem} {path_name} at threshold {threshold:g}")
     ds = ds.assign(spread_variables(surrogate, ds))
     ds = ds.assign(adaptive_variables(material, ds))
     ds.attrs.update(surrogate_attributes(surrogate, sigma_model, tangent_model))
@@ -143,7 +142,7 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
         n, 100 * ds.attrs["dem_point_fraction"], trial + replay, trial, replay, float(ds.attrs["time_run_s"]),
     )
     if trajectories is not None:
-        dem_points = dem_trajectories(material, problem, f"{path_name} at threshold {threshold:g}")
+        dem_points = dem_trajectories(material, bvp, f"{path_name} at threshold {threshold:g}")
         write_run(dem_points, trajectories, config, required=DEM_TRAJECTORY_VARIABLES)
         logger.info("wrote %s: the DEM answers of %d points along their %d commits", trajectories,
                     dem_points.sizes["gp"], dem_points.sizes["step"] - 1)
@@ -153,7 +152,7 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
     return ds
 
 
-def dem_trajectories(material: AdaptiveMaterialPointSet, problem: TriaxialProblem, run: str) -> xr.Dataset:
+def dem_trajectories(material: AdaptiveMaterialPointSet, problem: BoundaryValueProblem, run: str) -> xr.Dataset:
     """The points of an adaptive run that ran DEM, as trajectories (one ``gp`` each, the mesh point's
     id): per commit ``strain``, ``stress``, ``tangent`` (upper triangle, as in the data contract),
     ``history`` and ``valid`` (the RVE's answer at that state is known: always, for these points),

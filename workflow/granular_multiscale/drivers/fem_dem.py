@@ -1,8 +1,12 @@
-"""FEM–DEM: the triaxial FEM solver with a YADE RVE at every Gauss point, as called by the rule
-scripts, benches and studies (no Snakemake here).
+"""FEM–DEM: the FEM solver of any problem with a YADE RVE at every Gauss point, as called by the
+rule scripts, benches and studies (no Snakemake here).
 
-    run_fem_dem(config, path_name, packing_paths, output, checkpoint, n_workers, logger)
+    run_fem_dem(config, path_name, packing_paths, output, checkpoint, n_workers, logger,
+                problem="triaxial", weak_packing=None)
     run_fem_dem_uniform(packing, config)   one RVE under the uniform field (RVE-procedure study)
+
+A problem with a weak zone (``biaxial.weak_zone``) gives the RVEs inside it the weak packing
+(``drivers/problems.py``).
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from ..dem.material import SETTINGS_KEYS, DemMaterialPointSet
 from ..dem.run import inertial_number
 from ..fem.triaxial import TriaxialProblem
 from ..paths import load_paths_from_config
+from .problems import dem_packings, problem_and_path
 
 NEWTON_OVERRIDES = ("tolerance", "max_iterations", "max_cutbacks", "line_search", "tangent_repair", "acceleration",
                     "anderson_depth", "predictor")
@@ -37,28 +42,30 @@ def dem_newton_config(config: dict) -> dict:
 
 def run_fem_dem(config: dict, path_name: str, packing_paths: list[str], output: str,
                 checkpoint: str | None, n_workers: int, logger: logging.Logger | None = None,
-                dask_client=None):
-    """One FEM–DEM run of a load path, written in the data contract; returns the Dataset."""
+                dask_client=None, problem: str = "triaxial", weak_packing: str | None = None):
+    """One FEM–DEM run of a load path of `problem`, written in the data contract; returns the Dataset."""
     logger = logger or logging.getLogger("granular_multiscale.dem")
     cfg = dem_newton_config(config)
-    problem = TriaxialProblem.from_config(cfg)
-    load_path = load_paths_from_config(cfg)[path_name]
+    bvp, load_path = problem_and_path(cfg, problem, path_name)
+    packings, assignment = dem_packings(bvp, cfg, packing_paths, weak_packing)
     dem = cfg["dem"]
     checkpoint, scenes_dir = checkpoints.checkpoint_and_scenes(checkpoint)
     logger.info(
-        "FEM–DEM %s: %d steps, mesh %s (%d Gauss points = RVEs of %d spheres), %s executor with %d workers; "
-        "strain rate %.3g /s (inertial number %.1e), steps per increment %d..%d; Newton tolerance %.1e, "
+        "FEM–DEM %s %s: %d steps, mesh %s of %s (%d Gauss points = RVEs of %d spheres%s), %s executor with %d "
+        "workers; strain rate %.3g /s (inertial number %.1e), steps per increment %d..%d; Newton tolerance %.1e, "
         "%d iterations, %d cutbacks",
-        path_name, load_path.n_steps, "x".join(map(str, problem.mesh_elements)), problem.n_material_points,
-        dem["n_spheres"], dem["executor"], n_workers, dem["strain_rate"], inertial_number(cfg),
-        dem["min_steps"], dem["max_steps"], cfg["newton"]["tolerance"], cfg["newton"]["max_iterations"],
-        cfg["newton"]["max_cutbacks"],
+        problem, path_name, load_path.n_steps, "x".join(map(str, bvp.mesh_elements)), bvp.ops.element,
+        bvp.n_material_points, dem["n_spheres"],
+        f", {int(bvp.zones().sum())} in the weak zone" if bvp.zones().any() else "", dem["executor"], n_workers,
+        dem["strain_rate"], inertial_number(cfg), dem["min_steps"], dem["max_steps"], cfg["newton"]["tolerance"],
+        cfg["newton"]["max_iterations"], cfg["newton"]["max_cutbacks"],
     )
     t0 = time.perf_counter()
-    with DemMaterialPointSet.from_config(cfg, problem.n_material_points, packing_paths, n_workers=n_workers,
-                                         snapshot_dir=scenes_dir, logger=logger, dask_client=dask_client) as material:
+    with DemMaterialPointSet.from_config(cfg, bvp.n_material_points, packings, n_workers=n_workers,
+                                         snapshot_dir=scenes_dir, logger=logger, dask_client=dask_client,
+                                         assignment=assignment) as material:
         t_ready = time.perf_counter()
-        ds = problem.run(material, load_path, method="dem", checkpoint=checkpoint, logger=logger, progress=True)
+        ds = bvp.run(material, load_path, method="dem", checkpoint=checkpoint, logger=logger, progress=True)
     # Totals from the per-step records, so a resumed run counts the steps before its checkpoint
     # too (the material set itself only saw the steps after the resume).
     split = {k: float(ds[k].values.sum()) for k in (

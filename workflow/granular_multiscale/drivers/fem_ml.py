@@ -1,4 +1,4 @@
-"""One FEM–ML run: the same triaxial FEM solver with the surrogate material at every Gauss point.
+"""One FEM–ML run: the same FEM solver, on any problem, with the surrogate material at every Gauss point.
 
 The run file is that of any other run (data contract, ``granular_multiscale.data``); its
 ``method`` attribute says which networks and tangent sat at the Gauss points
@@ -25,9 +25,8 @@ import torch
 import xarray as xr
 
 from ..fem.newton import ConvergenceError
-from ..fem.triaxial import TriaxialProblem
-from ..paths import load_paths_from_config
 from ..surrogate.material import SurrogateMaterial, relative_spread, spread_floor
+from .problems import problem_and_path
 
 
 def fem_ml_config(config: dict) -> dict:
@@ -47,29 +46,31 @@ def run_fem_ml(
     progress: bool = True,
     checkpoint: str | Path | None = None,
     allow_partial: bool = False,
+    problem: str = "triaxial",
 ) -> xr.Dataset:
-    """FEM–ML run of load path `path_name` (validated config); returns the run Dataset.
+    """FEM–ML run of load path `path_name` of `problem` (validated config); returns the run Dataset.
 
     A step that does not converge raises ConvergenceError; with `allow_partial` (the runs that
     only compare the two tangents' Newton iterations) the converged steps are returned instead,
-    marked ``completed = 0`` with ``stopped_at_step`` and ``stop_reason``."""
+    marked ``completed = 0`` with ``stopped_at_step`` and ``stop_reason``. The networks stand for
+    one material: a weak zone of the problem is not represented (a warning says so)."""
     logger = logger or logging.getLogger("granular_multiscale.fem_ml")
-    paths = load_paths_from_config(config)
-    if path_name not in paths:
-        raise KeyError(f"unknown load path {path_name!r}; config key 'load_paths' defines {sorted(paths)}")
     config = fem_ml_config(config)
-    problem = TriaxialProblem.from_config(config)
-    material = surrogate_material(config, problem.n_material_points, sigma_model, tangent_model, tangent, logger)
+    bvp, load_path = problem_and_path(config, problem, path_name)
+    if bvp.zones().any():
+        logger.warning("FEM–ML %s %s: the networks stand for one material; the %d points of the weak zone get the "
+                       "same networks as the others", problem, path_name, int(bvp.zones().sum()))
+    material = surrogate_material(config, bvp.n_material_points, sigma_model, tangent_model, tangent, logger)
     logger.info(
-        "FEM–ML %s: %d Gauss points (%d material points), %s, tangent %s, NNσ %s%s (ensemble of %d); "
+        "FEM–ML %s %s: %d Gauss points (%d material points), %s, tangent %s, NNσ %s%s (ensemble of %d); "
         "Newton tolerance %g, %d iterations",
-        path_name, problem.n_gauss_points, material.n_points, "with history" if material.use_history else "NO history variables",
+        problem, path_name, bvp.n_gauss_points, material.n_points, "with history" if material.use_history else "NO history variables",
         tangent, sigma_model, f", ND {tangent_model}" if tangent == "nn" else "", material.ensemble_size,
         config["newton"]["tolerance"], config["newton"]["max_iterations"],
     )
     with material:
-        ds = run_keeping_partial(problem, material, paths[path_name], checkpoint, logger, progress, allow_partial,
-                                 f"FEM–ML {path_name} with the {tangent} tangent")
+        ds = run_keeping_partial(bvp, material, load_path, checkpoint, logger, progress, allow_partial,
+                                 f"FEM–ML {problem} {path_name} with the {tangent} tangent")
     ds = ds.assign(spread_variables(material, ds))
     ds.attrs.update(surrogate_attributes(material, sigma_model, tangent_model))
     n_out = int(ds["out_of_range_points"].max()) if "out_of_range_points" in ds else 0

@@ -1,7 +1,19 @@
-"""Gauss-point operators of a small-strain hexahedral discretisation.
+"""Gauss-point operators of a small-strain discretisation: trilinear hexahedra in 3D, or
+quadrilaterals in plane strain.
 
 The basis (shape function gradients, Jacobians, quadrature weights, dof numbering) comes
-from scikit-fem: ``Basis(mesh, ElementVector(ElementHex1()), intorder=3)``, 2×2×2 Gauss.
+from scikit-fem (:data:`ELEMENTS`):
+
+* ``hex8``: ``ElementVector(ElementHex1())`` with 2×2×2 Gauss points (the triaxial specimen);
+* ``quad8``: ``ElementVector(ElementQuadS2())``, 8-node serendipity quadrilaterals with 2×2
+  Gauss points (reduced integration: no volumetric locking under the nearly isochoric flow of
+  a shear band; the element of YADE's FEMxDEM examples);
+* ``quad4``: ``ElementVector(ElementQuad1())``, bilinear quadrilaterals with full 2×2 Gauss
+  integration (locks under isochoric flow; kept to measure that, docs/problems.md).
+
+Plane strain: the 2D mesh lies in the x–y plane (y vertical) and every Gauss point receives
+the full 6-component strain with ε_zz = γ_yz = γ_xz = 0, so the material-point sets are the
+same as in 3D (one 3D RVE per in-plane Gauss point); forces are per metre of thickness.
 Residual and stiffness are then assembled here with numpy batched products and a
 precomputed scatter into a fixed CSR pattern, not with ``BilinearForm``: the tangent is a
 different 6×6 matrix at every Gauss point and changes every Newton iteration; a
@@ -16,57 +28,87 @@ once per mesh:
 
 so that   f_int = Σ_eq dV Bᵀ σ    and    K = Σ_eq dV Bᵀ D B.
 
-Gauss point index = element * 8 + quadrature index (the order of ``basis.dx``).
+Gauss point index = element * points_per_element + quadrature index (the order of ``basis.dx``).
+Nodes are the mesh's vertices, then (quadratic elements) the mid-side nodes of its facets;
+``node_positions`` and ``nodal`` follow that order.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from skfem import Basis, ElementHex1, ElementVector, FacetBasis, LinearForm
+from skfem import Basis, ElementHex1, ElementQuad1, ElementQuadS2, ElementVector, FacetBasis, LinearForm
 from skfem.helpers import dot
 
 from ..tensors import ENGINEERING_FACTOR
 
-GAUSS_ORDER = 3  # scikit-fem intorder giving the 2×2×2 Gauss rule on hexahedra
-POINTS_PER_ELEMENT = 8
+GAUSS_ORDER = 3  # scikit-fem intorder giving the 2-point Gauss rule per direction
+POINTS_PER_ELEMENT = 8  # of the hexahedra of the triaxial specimen
+
+#: element name -> (scikit-fem scalar element, spatial dimension, Gauss points per element)
+ELEMENTS = {
+    "hex8": (ElementHex1, 3, 8),
+    "quad8": (ElementQuadS2, 2, 4),
+    "quad4": (ElementQuad1, 2, 4),
+}
 
 
-def vector_basis(mesh) -> Basis:
-    basis = Basis(mesh, ElementVector(ElementHex1()), intorder=GAUSS_ORDER)
-    if basis.X.shape[1] != POINTS_PER_ELEMENT:
-        raise RuntimeError(f"expected the 2×2×2 Gauss rule, scikit-fem gave {basis.X.shape[1]} points")
+def vector_basis(mesh, element: str = "hex8") -> Basis:
+    if element not in ELEMENTS:
+        raise ValueError(f"unknown element {element!r}; known: {sorted(ELEMENTS)}")
+    scalar, dim, points = ELEMENTS[element]
+    if mesh.dim() != dim:
+        raise ValueError(f"element {element!r} needs a {dim}D mesh, got a {mesh.dim()}D one")
+    basis = Basis(mesh, ElementVector(scalar()), intorder=GAUSS_ORDER)
+    if basis.X.shape[1] != points:
+        raise RuntimeError(f"expected {points} Gauss points per element, scikit-fem gave {basis.X.shape[1]}")
     return basis
 
 
 def strain_operator(basis: Basis) -> np.ndarray:
-    """B[e, q, 6, n_local] mapping element dofs to the engineering strain (Voigt 11,22,33,23,13,12)."""
+    """B[e, q, 6, n_local] mapping element dofs to the engineering strain (Voigt 11,22,33,23,13,12).
+
+    A 2D basis (plane strain in x–y) leaves the rows of ε33, γ23 and γ13 zero."""
     n_local = basis.Nbfun
     n_el, n_q = basis.dx.shape
-    B = np.empty((n_el, n_q, 6, n_local))
+    dim = basis.mesh.dim()
+    B = np.empty((n_el, n_q, 6, n_local)) if dim == 3 else np.zeros((n_el, n_q, 6, n_local))
     for i in range(n_local):
         G = basis.basis[i][0].grad  # [component, direction, element, point] = ∂φ_i,c/∂x_j
         B[:, :, 0, i] = G[0, 0]
         B[:, :, 1, i] = G[1, 1]
-        B[:, :, 2, i] = G[2, 2]
-        B[:, :, 3, i] = G[1, 2] + G[2, 1]
-        B[:, :, 4, i] = G[0, 2] + G[2, 0]
         B[:, :, 5, i] = G[0, 1] + G[1, 0]
+        if dim == 3:
+            B[:, :, 2, i] = G[2, 2]
+            B[:, :, 3, i] = G[1, 2] + G[2, 1]
+            B[:, :, 4, i] = G[0, 2] + G[2, 0]
     return B
 
 
 class GaussPointOperators:
-    """Strain, internal force and stiffness of a vector hexahedral basis at its Gauss points."""
+    """Strain, internal force and stiffness of a vector basis at its Gauss points."""
 
-    def __init__(self, mesh):
+    def __init__(self, mesh, element: str = "hex8"):
         self.mesh = mesh
-        self.basis = vector_basis(mesh)
+        self.element = element
+        self.basis = vector_basis(mesh, element)
+        self.dim = mesh.dim()
         self.n_dofs = self.basis.N
         self.element_dofs = np.ascontiguousarray(self.basis.element_dofs.T)  # [n_el, 24]
         self.n_elements, self.n_local = self.element_dofs.shape
-        self.B = strain_operator(self.basis)  # [n_el, 8, 6, 24]
-        self.dV = np.asarray(self.basis.dx)  # [n_el, 8]
+        self.B = strain_operator(self.basis)  # [n_el, n_q, 6, n_local]
+        self.dV = np.asarray(self.basis.dx)  # [n_el, n_q]
+        self.points_per_element = self.dV.shape[1]
         self.n_gauss_points = self.dV.size
+        # nodes: the vertices, then the mid-side node of every facet (quadratic elements)
+        node_dofs = [self.basis.nodal_dofs.T]
+        if self.basis.facet_dofs.size:
+            node_dofs.append(self.basis.facet_dofs.T)
+        self.node_dof_index = np.ascontiguousarray(np.concatenate(node_dofs))  # [n_nodes, dim]
+        positions = [mesh.p.T]
+        if self.basis.facet_dofs.size:
+            positions.append(mesh.p[:, mesh.facets].mean(axis=1).T)
+        self._node_positions = np.concatenate(positions)
         self._BT_dV = np.ascontiguousarray(
             (self.B * self.dV[:, :, None, None]).reshape(self.n_elements, -1, self.n_local).transpose(0, 2, 1)
         )  # [n_el, 24, 8*6]
@@ -119,9 +161,22 @@ class GaussPointOperators:
         return self.csr(self.stiffness_data(tangent))
 
     def gauss_point_positions(self) -> np.ndarray:
-        """[n_gp, 3] coordinates of the Gauss points (gp = element * 8 + q)."""
-        x = self.basis.mapping.F(self.basis.X)  # [3, n_el, 8]
-        return np.asarray(x).reshape(3, -1).T.copy()
+        """[n_gp, 3] coordinates of the Gauss points (gp = element * points_per_element + q; z = 0 in 2D)."""
+        x = np.asarray(self.basis.mapping.F(self.basis.X)).reshape(self.dim, -1).T  # [n_gp, dim]
+        return _as_3d(x)
+
+    @property
+    def node_positions(self) -> np.ndarray:
+        """[n_nodes, 3] coordinates of the nodes (vertices, then mid-side nodes; z = 0 in 2D)."""
+        return _as_3d(self._node_positions)
+
+    @property
+    def n_nodes(self) -> int:
+        return self.node_dof_index.shape[0]
+
+    def element_vertices(self) -> np.ndarray:
+        """[n_elements, vertices] vertex node indices of each element, scikit-fem's local order."""
+        return self.mesh.t.T.copy()
 
     def volume_average(self, field: np.ndarray) -> np.ndarray:
         """Volume average of a Gauss-point field [n_gp, ...]."""
@@ -129,11 +184,11 @@ class GaussPointOperators:
         return np.tensordot(w, field, axes=(0, 0)) / w.sum()
 
     def nodal(self, u: np.ndarray) -> np.ndarray:
-        """Dof vector -> [n_nodes, 3]."""
-        return u[self.basis.nodal_dofs.T]
+        """Dof vector -> [n_nodes, 3] (z = 0 in 2D)."""
+        return _as_3d(u[self.node_dof_index])
 
     def node_dofs(self, nodes: np.ndarray, component: int) -> np.ndarray:
-        return self.basis.nodal_dofs[component, nodes]
+        return self.node_dof_index[nodes, component]
 
     def pressure_load(self, facets: np.ndarray, pressure: float) -> np.ndarray:
         """Nodal forces of a uniform pressure (compression positive) on boundary facets: ∫ −p n·v ds."""
@@ -144,3 +199,11 @@ class GaussPointOperators:
             return -pressure * dot(w.n, v)
 
         return traction.assemble(fbasis)
+
+
+def _as_3d(x: np.ndarray) -> np.ndarray:
+    """[n, dim] -> [n, 3], a 2D plane padded with z = 0 (the data contract's xyz)."""
+    x = np.asarray(x, dtype=float)
+    if x.shape[1] == 3:
+        return x.copy()
+    return np.hstack([x, np.zeros((x.shape[0], 3 - x.shape[1]))])

@@ -1,9 +1,10 @@
-"""Structured hexahedral mesh of the box-shaped specimen and its faces."""
+"""Structured meshes: the box of hexahedra of the triaxial specimen and its faces; the (graded)
+rectangles of quadrilaterals of the plane-strain problems."""
 
 from __future__ import annotations
 
 import numpy as np
-from skfem import MeshHex
+from skfem import MeshHex, MeshQuad
 
 FACES = ("xmin", "xmax", "ymin", "ymax", "bottom", "top")
 LATERAL_FACES = ("xmin", "xmax", "ymin", "ymax")
@@ -50,3 +51,49 @@ def lateral_facets(mesh: MeshHex, size, faces=LATERAL_FACES) -> np.ndarray:
         lambda x: np.any([np.abs(x[axis] - value) < tol for axis, value in chosen], axis=0),
         boundaries_only=True,
     )
+
+
+# -- plane strain ---------------------------------------------------------------------------
+def graded_axis(start: float, end: float, n: int, first: float | None = None) -> np.ndarray:
+    """n + 1 node coordinates from start to end; with `first`, element sizes grow (or shrink)
+    geometrically from `first` at `start` (ratio found by bisection), else they are equal."""
+    length = end - start
+    if n < 1 or not length > 0:
+        raise ValueError(f"an axis needs n >= 1 elements and end > start, got n={n}, [{start}, {end}]")
+    if first is None or abs(first * n - length) <= 1e-12 * length:
+        return start + np.linspace(0.0, length, n + 1)
+    if not 0 < first < length:
+        raise ValueError(f"first element size {first} must lie in (0, {length})")
+
+    def total(ratio: float) -> float:
+        return first * n if ratio == 1.0 else first * (ratio**n - 1.0) / (ratio - 1.0)
+
+    lo, hi = (1.0, 2.0) if first * n < length else (1e-6, 1.0)
+    while first * n < length and total(hi) < length:
+        hi *= 2.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if total(mid) < length else (lo, mid)
+    sizes = first * ((lo + hi) / 2) ** np.arange(n)
+    nodes = start + np.concatenate([[0.0], np.cumsum(sizes)])
+    nodes[-1] = end
+    return nodes
+
+
+def rectangle_mesh(x_nodes, y_nodes) -> MeshQuad:
+    """Tensor-product quadrilateral mesh of the rectangle spanned by the node coordinates (x, y; y vertical)."""
+    x_nodes, y_nodes = np.asarray(x_nodes, dtype=float), np.asarray(y_nodes, dtype=float)
+    for name, axis in (("x", x_nodes), ("y", y_nodes)):
+        if axis.ndim != 1 or axis.size < 2 or np.any(np.diff(axis) <= 0):
+            raise ValueError(f"{name} node coordinates must increase strictly, got {axis.tolist()}")
+    return MeshQuad.init_tensor(x_nodes, y_nodes)
+
+
+def nodes_where(positions: np.ndarray, axis: int, value: float, scale: float) -> np.ndarray:
+    """Indices of the nodes whose coordinate `axis` equals `value` (to 1e-9 × scale)."""
+    return np.flatnonzero(np.abs(positions[:, axis] - value) < 1e-9 * scale)
+
+
+def boundary_facets_where(mesh, predicate) -> np.ndarray:
+    """Boundary facets whose midpoint satisfies predicate(x) (x: [dim, n] midpoints)."""
+    return mesh.facets_satisfying(predicate, boundaries_only=True)

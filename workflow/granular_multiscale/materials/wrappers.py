@@ -6,6 +6,8 @@ solver sees, never the solver.
   at least a floor; counts per step how many raw tangents were not positive definite.
 * :class:`NoisyTangent` — a DEM-like random perturbation of the tangent (stress untouched),
   seeded and a pure function of the trial strain, for robustness tests of the solver.
+* :class:`Zoned` — a heterogeneous body of analytic materials: the points of each zone (a weak
+  zone that triggers a shear band) answered by a material set of their own;
 * :class:`UniformField` — a homogeneous scene (smooth platens, uniform material): one
   material point is evaluated and its answer broadcast to every Gauss point; a trial field
   that is not uniform stops the run with :class:`NonUniformFieldError`.
@@ -264,3 +266,62 @@ class UniformField(MaterialWrapper):
             strain = self._check_strain(strain)
             strain = strain.mean(axis=0)[None, :]  # the one point's strain, as evaluate passed it
         self.inner.commit(strain)
+
+
+class Zoned(MaterialPointSet):
+    """Material sets side by side: point i is answered by ``sets[zones[i]]`` (each set holds the
+    points of its zone, in order). Used for the analytic models of a heterogeneous body, e.g.
+    the weak zone of a biaxial specimen; DEM sets express zones through their packing
+    assignment instead. ``step_info`` is the point-weighted mean of the sets' values (the
+    analytic sets report fractions and means)."""
+
+    def __init__(self, sets: list[MaterialPointSet], zones):
+        zones = np.asarray(zones, dtype=int)
+        super().__init__(zones.size)
+        if zones.min() < 0 or zones.max() >= len(sets):
+            raise ValueError(f"zones must index the {len(sets)} material sets, got values {sorted(set(zones))}")
+        self.members = [np.flatnonzero(zones == k) for k in range(len(sets))]
+        for k, (inner, idx) in enumerate(zip(sets, self.members)):
+            if inner.n_points != idx.size:
+                raise ValueError(f"material set {k} has {inner.n_points} points, zone {k} {idx.size}")
+        self.sets = list(sets)
+        self.zones = zones
+        self.method = sets[0].method
+
+    def evaluate(self, strain, need_tangent: bool = True):
+        strain = self._check_strain(strain)
+        stress = np.empty((self.n_points, 6))
+        tangent = np.empty((self.n_points, 6, 6)) if need_tangent else None
+        for inner, idx in zip(self.sets, self.members):
+            if idx.size:
+                s, t = inner.evaluate(strain[idx], need_tangent=need_tangent)
+                stress[idx] = s
+                if need_tangent:
+                    tangent[idx] = t
+        return stress, tangent
+
+    def commit(self, strain=None) -> None:
+        for inner, idx in zip(self.sets, self.members):
+            if idx.size:
+                inner.commit(None if strain is None else np.asarray(strain, dtype=float)[idx])
+
+    def checkpoint_key(self) -> dict:
+        return {"zones": self.zones.tolist(), "sets": [inner.checkpoint_key() for inner in self.sets]}
+
+    def get_state(self) -> dict[str, Any]:
+        return {"zones": self.zones.copy(), "sets": [inner.get_state() for inner in self.sets]}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        if not np.array_equal(state["zones"], self.zones):
+            raise ValueError("the checkpoint's material zones differ from this run's")
+        for inner, inner_state in zip(self.sets, state["sets"]):
+            inner.set_state(inner_state)
+
+    def step_info(self) -> dict[str, float]:
+        infos = [(inner.step_info(), idx.size) for inner, idx in zip(self.sets, self.members) if idx.size]
+        keys = sorted({k for info, _ in infos for k in info})
+        return {k: sum(info.get(k, 0.0) * n for info, n in infos) / self.n_points for k in keys}
+
+    def close(self) -> None:
+        for inner in self.sets:
+            inner.close()
