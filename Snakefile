@@ -15,6 +15,7 @@ include: "workflow/rules/convergence.smk"
 include: "workflow/rules/surrogate.smk"
 include: "workflow/rules/adaptive.smk"
 include: "workflow/rules/analysis.smk"
+include: "workflow/rules/problems.smk"
 
 
 report: "workflow/report/workflow.rst"

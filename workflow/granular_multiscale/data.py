@@ -1,14 +1,21 @@
 """The data contract: one self-describing HDF5 file per FEM run (xarray, engine h5netcdf).
 
+Every problem (attribute ``problem``: triaxial, biaxial, footing; ``fem/``) writes the same
+variables; each adds its own observables. Plane-strain problems (attribute ``plane_strain`` 1)
+lie in the x–y plane (y vertical, z = 0), their strains have ε_zz = γ_xz = γ_yz = 0 and their
+forces are per metre of thickness (units N/m).
+
 Coordinates
     step   load step, 0 = consolidated initial state
-    gp     Gauss point, index = element * 8 + quadrature point
+    gp     Gauss point, index = element * k + quadrature point (k = attribute
+           ``gauss_points_per_element``: 8 hexahedra, 4 quadrilaterals)
     comp   Voigt labels "11","22","33","23","13","12" (tensors.COMP)
     tcomp  21 labels of the upper triangle of the 6×6 tangent (tensors.TCOMP)
     tcomp36  36 labels of the full 6×6 tangent, row by row (tensors.TCOMP36); only in a run
            whose tangent is not symmetric
     hist   "phi1","phi2","phi3","psi1","psi2" (history.HIST)
-    node, xyz ("x","y","z"), iteration (Newton iteration within a step)
+    node   vertices, then (quadratic elements) mid-side nodes; xyz ("x","y","z")
+    element, vertex   the elements and their vertex nodes; iteration (Newton iteration within a step)
 
 Variables (units in each variable's attrs)
     strain(step,gp,comp)        total small strain, tensorial shear, tension positive
@@ -18,10 +25,19 @@ Variables (units in each variable's attrs)
     tangent_full(step,gp,tcomp36)  Pa, only when the tangent is not symmetric: all of it
     history(step,gp,hist)       φ1–φ3, ψ1, ψ2 of the converged strains
     gp_position(gp,xyz), node_position(node,xyz), displacement(step,node,xyz)   m
-    axial_strain(step)          compression positive
-    top_force(step)             N, tension positive (= ∫σzz over the top face)
-    volumetric_strain(step)     tension positive
+    element_vertices(element,vertex)   node indices, scikit-fem's local vertex order
+    load_displacement(step)     m, displacement of the loaded boundary along the load (downwards
+                                positive); = the load path's value × attribute load_length_m
+    load_force(step)            reaction of the loaded boundary along the load, compression positive;
+                                N (3D) or N/m (plane strain); its description says of what
+    volumetric_strain(step)     tension positive (plane strain: area change / area)
     newton_iterations(step), residual_norm(step,iteration), cutbacks(step), wall_time(step), phase(step)
+
+Per problem (units and signs in each variable's attrs; attributes ``load_measure``, ``load_length_m``)
+    triaxial  axial_strain(step) compression positive; top_force(step) N, tension positive
+              (= ∫σzz over the top face = −load_force), the names users' scripts read
+    biaxial   axial_strain(step); top_force(step) N/m, tension positive; lateral_strain(step)
+    footing   settlement_ratio(step) s/B; footing_pressure(step) Pa, compression positive
 
 Tangents. The file holds the tangent the solver used at each converged state (after
 ``newton.tangent_repair`` where configured), without loss: a symmetric one (to round-off,
@@ -67,8 +83,8 @@ REQUIRED_VARIABLES = (
     "gp_position",
     "node_position",
     "displacement",
-    "axial_strain",
-    "top_force",
+    "load_displacement",
+    "load_force",
     "volumetric_strain",
     "newton_iterations",
     "wall_time",
@@ -117,6 +133,7 @@ def read_run(path: str | Path, required=REQUIRED_VARIABLES) -> xr.Dataset:
             ds = ds.load()
     except Exception as error:  # h5py/h5netcdf raise OSError, ValueError, KeyError... on damaged files
         raise DataFileError(f"run file {path} is not a readable HDF5/netCDF file (truncated or corrupt?): {error}") from error
+    ds = _with_load_variables(ds)
     missing = [v for v in required if v not in ds.variables]
     if missing:
         raise DataFileError(f"run file {path} lacks variables {missing}")
@@ -128,6 +145,18 @@ def read_run(path: str | Path, required=REQUIRED_VARIABLES) -> xr.Dataset:
             if not (finite | ~valid).all() if valid is not None else not finite.all():
                 raise DataFileError(f"run file {path}: variable '{name}' holds non-finite values")
     return ds
+
+
+def _with_load_variables(ds: xr.Dataset) -> xr.Dataset:
+    """A triaxial run written before every run held ``load_force`` and ``load_displacement`` gets
+    them from its ``top_force`` and ``axial_strain`` (what every run now writes for itself)."""
+    if "load_force" in ds or "top_force" not in ds or "axial_strain" not in ds or "specimen_size_m" not in ds.attrs:
+        return ds
+    height = float(np.asarray(ds.attrs["specimen_size_m"])[2])
+    return ds.assign(
+        load_force=(("step",), -ds["top_force"].values, {"units": "N", "description": "-top_force"}),
+        load_displacement=(("step",), ds["axial_strain"].values * height, {"units": "m"}),
+    )
 
 
 def run_config(ds: xr.Dataset) -> dict | None:

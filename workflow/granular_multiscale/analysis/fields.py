@@ -1,11 +1,13 @@
-"""Fields on the specimen: the hex mesh as a VTK grid, off-screen renderings, VTU export.
+"""Fields on the specimen: the mesh as a VTK grid, off-screen renderings, VTU export.
 
-The run files store node positions in scikit-fem's node order (``MeshHex.init_tensor``)
-and Gauss-point values with gp = element * 8 + q. The mesh's connectivity is rebuilt from
-the node positions (a tensor-product grid) and checked against them; hexahedra are passed
-to VTK in VTK's vertex order (bottom quad, then top quad).
+The run files store node positions in scikit-fem's node order, the elements' vertices
+(``element_vertices``) and Gauss-point values with gp = element * k + q (k = 8 for hexahedra,
+4 for quadrilaterals). A triaxial run written before the files held ``element_vertices`` has
+its connectivity rebuilt from the node positions (a tensor-product grid, checked against
+them); hexahedra are passed to VTK in VTK's vertex order (bottom quad, then top quad),
+quadrilaterals (plane strain, in the x–y plane) as they are.
 
-Gauss-point values are shown as cell averages (mean of the element's 8 points), nodal
+Gauss-point values are shown as cell averages (mean of the element's points), nodal
 displacement as point data; the mesh is drawn deformed by the run's own displacement.
 """
 
@@ -61,20 +63,38 @@ def hex_elements(node_position: np.ndarray) -> np.ndarray:
     return mesh.t.T.copy()
 
 
+def run_elements(ds: xr.Dataset) -> np.ndarray:
+    """Element vertices [n_elements, 8 or 4] of a run: its ``element_vertices``, or (a triaxial run
+    written before the files held them) the hex mesh rebuilt from the node positions."""
+    if "element_vertices" in ds:
+        return ds["element_vertices"].transpose("element", "vertex").values.astype(np.int64)
+    return hex_elements(ds["node_position"].values)
+
+
 def vtk_grid(node_position: np.ndarray, elements: np.ndarray) -> pv.UnstructuredGrid:
-    """Undeformed hexahedral grid; ``elements`` in scikit-fem order [n_elements, 8]."""
+    """Undeformed grid of hexahedra [n_elements, 8] or quadrilaterals [n_elements, 4] (vertex
+    nodes in scikit-fem's local order; a quadratic quadrilateral is drawn by its vertices)."""
     elements = np.asarray(elements, dtype=np.int64)
-    cells = np.hstack([np.full((len(elements), 1), 8), elements[:, SKFEM_TO_VTK_HEX]]).ravel()
-    cell_types = np.full(len(elements), pv.CellType.HEXAHEDRON, dtype=np.uint8)
+    if elements.shape[1] == 8:
+        cells = np.hstack([np.full((len(elements), 1), 8), elements[:, SKFEM_TO_VTK_HEX]]).ravel()
+        kind = pv.CellType.HEXAHEDRON
+    elif elements.shape[1] == 4:  # scikit-fem's quadrilaterals run counter-clockwise, as VTK_QUAD
+        cells = np.hstack([np.full((len(elements), 1), 4), elements]).ravel()
+        kind = pv.CellType.QUAD
+    else:
+        raise ValueError(f"elements of {elements.shape[1]} vertices are neither hexahedra nor quadrilaterals")
+    cell_types = np.full(len(elements), kind, dtype=np.uint8)
     return pv.UnstructuredGrid(cells, cell_types, np.asarray(node_position, dtype=float))
 
 
 def cell_average(gp_values: np.ndarray, n_elements: int) -> np.ndarray:
-    """[n_gp, ...] Gauss-point values -> [n_elements, ...] element means (gp = element*8 + q)."""
+    """[n_gp, ...] Gauss-point values -> [n_elements, ...] element means (gp = element*k + q, k
+    points per element)."""
     gp_values = np.asarray(gp_values)
-    if gp_values.shape[0] != 8 * n_elements:
-        raise ValueError(f"{gp_values.shape[0]} Gauss points for {n_elements} elements (expected 8 each)")
-    return gp_values.reshape((n_elements, 8) + gp_values.shape[1:]).mean(axis=1)
+    per_element, rest = divmod(gp_values.shape[0], n_elements)
+    if rest or per_element not in (4, 8):
+        raise ValueError(f"{gp_values.shape[0]} Gauss points for {n_elements} elements (expected 8 or 4 each)")
+    return gp_values.reshape((n_elements, per_element) + gp_values.shape[1:]).mean(axis=1)
 
 
 # --------------------------------------------------------------------------------------
@@ -222,7 +242,7 @@ def field_comparison(
     from .figures import save_figure
 
     q = FIELD_QUANTITIES[quantity]
-    elements = hex_elements(reference["node_position"].values)
+    elements = run_elements(reference)
     n_el = len(elements)
     steps = resolve_steps(steps, reference.sizes["step"])
     # a surrogate run that stopped early (metrics.is_partial) has no fields after its last step
@@ -337,7 +357,7 @@ def write_vtu_series(ds: xr.Dataset, directory: str | Path, stem: str) -> Path:
         for f in tmp.iterdir():
             f.unlink()
     tmp.mkdir(parents=True, exist_ok=True)
-    elements = hex_elements(ds["node_position"].values)
+    elements = run_elements(ds)
     entries = []
     for step in ds["step"].values.tolist():
         name = f"{stem}_{step:04d}.vtu"

@@ -84,7 +84,7 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
     given; :func:`dem_trajectories`). A step that does not converge raises ConvergenceError, or with
     `allow_partial` keeps the converged steps (``completed = 0``)."""
     logger = logger or logging.getLogger("granular_multiscale.drivers.adaptive")
-    cfg = dem_newton_config(config)
+    cfg = dem_newton_config(config, problem)
     bvp, load_path = problem_and_path(cfg, problem, path_name)
     packings, assignment = dem_packings(bvp, cfg, packing_paths, weak_packing)
     section = cfg["adaptive"]

@@ -31,12 +31,15 @@ NEWTON_OVERRIDES = ("tolerance", "max_iterations", "max_cutbacks", "line_search"
                     "anderson_depth", "predictor")
 
 
-def dem_newton_config(config: dict) -> dict:
-    """The config a FEM–DEM run uses: ``newton`` with the overrides of ``dem.newton``."""
+def dem_newton_config(config: dict, problem: str = "triaxial") -> dict:
+    """The config a FEM–DEM run of `problem` uses: ``newton`` with the overrides of ``dem.newton``,
+    and then those of the problem's ``dem_newton`` (the plane-strain problems' sections)."""
     cfg = copy.deepcopy(config)
     for key in NEWTON_OVERRIDES:
         if key in cfg["dem"].get("newton", {}):
             cfg["newton"][key] = cfg["dem"]["newton"][key]
+    if problem != "triaxial":
+        cfg["newton"].update(cfg[problem].get("dem_newton", {}))
     return cfg
 
 
@@ -45,7 +48,7 @@ def run_fem_dem(config: dict, path_name: str, packing_paths: list[str], output: 
                 dask_client=None, problem: str = "triaxial", weak_packing: str | None = None):
     """One FEM–DEM run of a load path of `problem`, written in the data contract; returns the Dataset."""
     logger = logger or logging.getLogger("granular_multiscale.dem")
-    cfg = dem_newton_config(config)
+    cfg = dem_newton_config(config, problem)
     bvp, load_path = problem_and_path(cfg, problem, path_name)
     packings, assignment = dem_packings(bvp, cfg, packing_paths, weak_packing)
     dem = cfg["dem"]

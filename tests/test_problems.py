@@ -1,0 +1,340 @@
+"""The problems beyond the triaxial specimen: the plane-strain biaxial test and the strip footing.
+
+Closed-form checks with the linear elastic material, localisation with the softening
+elastoplastic model (no YADE), the band and angle metrics on fields whose answer is known, the
+errors of bad settings, and, with real YADE RVEs, a band in the biaxial test and a resume after
+kill -9 that ends bit for bit where an uninterrupted run does."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+import yaml
+from dem_fixtures import ROOT, packing, tiny_config
+
+from granular_multiscale.analysis.angles import bearing_capacity_factor, element_angles
+from granular_multiscale.analysis.bands import band_metrics
+from granular_multiscale.config import ConfigError, validate_config
+from granular_multiscale.data import read_run
+from granular_multiscale.drivers.problems import analytic_material, dem_packings, problem_and_path
+from granular_multiscale.drivers.reference import run_fem_reference
+from granular_multiscale.fem import make_problem
+from granular_multiscale.fem.biaxial import BiaxialProblem, ProblemConfigError
+from granular_multiscale.fem.footing import FootingProblem
+from granular_multiscale.fem.newton import ConvergenceError
+from granular_multiscale.materials import LinearElastic
+from granular_multiscale.materials.elastoplastic import SOFTENING
+from granular_multiscale.paths import LoadPath
+
+P0 = 1.0e5
+E, NU = 5.0e7, 0.25
+ISOTROPIC = [-P0, -P0, -P0, 0.0, 0.0, 0.0]
+
+
+def elastic(problem) -> LinearElastic:
+    return LinearElastic(problem.n_material_points, E, NU, initial_stress=ISOTROPIC)
+
+
+def softening_config(tmp_path: Path, **sections) -> dict:
+    """The tiny config with the softening elastoplastic model, and the given section overrides."""
+    config = tiny_config(tmp_path, {"path1": [[2, 0.002]]})
+    config["reference_material"] = "elastoplastic"
+    config["elastoplastic"].update(SOFTENING)
+    config["newton"]["max_cutbacks"] = 6
+    for name, values in sections.items():
+        config[name].update(values)
+    return validate_config(config)
+
+
+# ------------------------------------------------------------------------ closed form
+def test_biaxial_elastic_plane_strain_is_the_closed_form():
+    """A homogeneous elastic specimen: uniform plane-strain field, ε_zz = 0, the platen force and the
+    lateral strain of plane-strain elasticity (E' = E/(1 − ν²), ν' = ν/(1 − ν)), σ_zz = −p0 + ν Δ(σxx + σyy)."""
+    problem = BiaxialProblem(size=(0.05, 0.1), elements=(3, 6), weak_zone=None)
+    ds = problem.run(elastic(problem), LoadPath("p", ((4, 0.004),)), progress=False)
+    strain, stress = ds.strain.values, ds.stress.values
+    assert np.abs(strain[:, :, 2:5]).max() == 0.0  # ε_zz = γ_yz = γ_xz = 0 at every Gauss point
+    axial = ds.axial_strain.values
+    e_plane, nu_plane = E / (1 - NU**2), NU / (1 - NU)
+    width = 0.05
+    np.testing.assert_allclose(ds.load_force.values, P0 * width + e_plane * axial * width, rtol=1e-9)
+    np.testing.assert_allclose(ds.top_force.values, -ds.load_force.values, rtol=0)
+    np.testing.assert_allclose(ds.lateral_strain.values, nu_plane * axial, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(strain[-1, :, 1], -axial[-1], rtol=1e-9)
+    d_sigma = stress[-1, :, 0] + stress[-1, :, 1] + 2 * P0
+    np.testing.assert_allclose(stress[-1, :, 2], -P0 + NU * d_sigma, rtol=1e-9)
+    assert np.ptp(stress[-1], axis=0).max() < 1e-6 * P0  # homogeneous
+    assert ds.attrs["plane_strain"] == 1 and ds.sizes["gp"] == 72 and ds.attrs["problem"] == "biaxial"
+    np.testing.assert_allclose(ds.load_displacement.values, axial * 0.1, rtol=0)
+
+
+@pytest.mark.parametrize("element", ["quad8", "quad4"])
+def test_plane_strain_elements_integrate_exactly(element):
+    """Element areas and Gauss-point counts: 2 × 2 points per quadrilateral, weights summing to W × H."""
+    problem = BiaxialProblem(size=(0.05, 0.1), elements=(2, 4), element=element, weak_zone=None)
+    assert problem.ops.points_per_element == 4 and problem.n_gauss_points == 32
+    assert problem.ops.dV.sum() == pytest.approx(0.005, rel=1e-12)
+    assert problem.ops.n_nodes == (21 + 16 if element == "quad8" else 15)
+
+
+def test_footing_starts_in_equilibrium_and_its_pressure_rises():
+    """At zero settlement the consolidated state balances the surcharge (pressure = q0); pushing the
+    footing raises the pressure at every step."""
+    problem = FootingProblem()
+    ds = problem.run(elastic(problem), LoadPath("f", ((5, 0.05),)), progress=False)
+    q = ds.footing_pressure.values
+    assert q[0] == pytest.approx(P0, rel=1e-9)
+    assert ds.residual_relative.values[0] < 1e-12
+    assert np.all(np.diff(q) > 0)
+    assert ds.attrs["modelled_fraction"] == 0.5 and ds.attrs["surcharge_Pa"] == P0
+    np.testing.assert_allclose(ds.load_force.values, q * 0.1, rtol=1e-12)
+
+
+def test_footing_half_domain_equals_the_full_domain(tmp_path):
+    """The half model (symmetry plane) gives the full domain's footing pressure, and the full
+    domain's nodes on the plane x = 0 move only vertically (softening elastoplastic model)."""
+    config = softening_config(tmp_path, footing={"load_paths": {"f": {"segments": [[6, 0.06]]}}})
+    half = run_fem_reference(config, "f", tmp_path / "half.h5", problem="footing")
+    config["footing"]["symmetry"] = "none"
+    full = run_fem_reference(config, "f", tmp_path / "full.h5", problem="footing")
+    assert full.sizes["gp"] == 2 * half.sizes["gp"]
+    np.testing.assert_allclose(full.footing_pressure.values, half.footing_pressure.values, rtol=1e-6)
+    plane = np.abs(full.node_position.values[:, 0]) < 1e-12
+    ux = full.displacement.sel(xyz="x").values[:, plane]
+    uy = full.displacement.sel(xyz="y").values[:, plane]
+    assert np.abs(ux).max() < 1e-9 * np.abs(uy).max()
+    assert np.all(np.diff(half.footing_pressure.values) > 0)
+    assert half.footing_pressure.values[-1] > 3 * P0  # several times the surcharge at 6 % of B
+
+
+# ------------------------------------------------------------------------ localisation
+def test_biaxial_localises_in_a_band_from_the_weak_zone(tmp_path):
+    """Softening model, 3 × 6 quad8: with the weak zone a band forms (ratio of its shear strain to
+    the specimen's ≥ 2, measured 3.6 with the default zone), inclined at 50° (the model has
+    no single φ, so the check is the band's existence and a steep inclination); without it
+    the specimen stays uniform (ratio 1)."""
+    config = softening_config(tmp_path)
+    weak = run_fem_reference(config, "biaxial", tmp_path / "weak.h5", problem="biaxial")
+    m = band_metrics(weak)
+    assert m["band_ratio"] >= 2.0
+    assert 40 <= m["inclination_deg"] <= 60
+    assert 0.02 < m["onset_load"] < 0.08  # after the peak of the force (2.75 %), before the end
+    assert weak.load_force.values[-1] < 0.9 * weak.load_force.max()
+    config["biaxial"]["weak_zone"] = None
+    uniform = run_fem_reference(config, "biaxial", tmp_path / "uniform.h5", problem="biaxial")
+    assert band_metrics(uniform)["band_ratio"] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_quadratic_elements_do_not_lock_where_bilinear_ones_do(tmp_path):
+    """The same softening biaxial test, 6 × 12 elements, a weak zone of 8 mm radius: quad8 (2 × 2
+    points) localises into one band (ratio 6.35 measured, at 46°), fully integrated quad4 locks
+    under the band's isochoric flow (2.14, the strain spread over the bottom, at 5.5°)."""
+    ratios = {}
+    zone = {"center": [0.0125, 0.04], "radius": 0.008}
+    for element in ("quad8", "quad4"):
+        config = softening_config(tmp_path, biaxial={"elements": [6, 12], "element": element, "weak_zone": zone})
+        ratios[element] = band_metrics(run_fem_reference(config, "biaxial", tmp_path / f"{element}.h5",
+                                                         problem="biaxial"))["band_ratio"]
+    assert ratios["quad8"] > 2.0 * ratios["quad4"], ratios
+
+
+def test_a_step_without_equilibrium_stops_naming_it_and_keeps_the_converged_steps(tmp_path):
+    """A brittle softening (k_s = 150 kPa over κs = 0.02) snaps back on the 3 × 6 mesh: no cutback
+    finds equilibrium; the error names the load step and its axial strain, and the checkpoint
+    keeps every converged step for a resume."""
+    config = softening_config(tmp_path)
+    config["elastoplastic"].update(softening=1.5e5, softening_strain=0.02)
+    problem, path = problem_and_path(config, "biaxial", "biaxial")
+    checkpoint = tmp_path / "run.ckpt"
+    with pytest.raises(ConvergenceError, match=r"load step (\d+) \(axial strain [0-9.]+ -> [0-9.]+\) did not "
+                                              r"converge after 6 cutbacks") as failure:
+        problem.run(analytic_material("elastoplastic", problem, config), path, checkpoint=checkpoint,
+                    progress=False)
+    stopped = int(failure.value.partial.attrs["stopped_at_step"])
+    assert failure.value.partial.sizes["step"] == stopped
+    assert pickle.loads(checkpoint.read_bytes())["step"] == stopped - 1
+
+
+# ------------------------------------------------------------------------ metrics
+def test_band_metrics_find_a_band_of_known_inclination_and_width():
+    """Gauss points on a grid, shear strain 0.3 in a strip at 58° from the x axis, 8 mm wide, 0.05
+    elsewhere; the minor principal stress along x: the metrics recover 58° and about 8 mm."""
+    x, y = np.meshgrid(np.linspace(0.001, 0.049, 40), np.linspace(0.001, 0.099, 80))
+    xy = np.column_stack([x.ravel(), y.ravel()])
+    theta = np.radians(58.0)
+    distance = (xy - [0.025, 0.05]) @ np.array([-np.sin(theta), np.cos(theta)])
+    level = np.where(np.abs(distance) <= 0.004, 0.3, 0.05)
+    steps = np.array([0.0, 0.5, 1.0])
+    strain = np.zeros((3, len(xy), 6))
+    strain[:, :, 0] = steps[:, None] * 0.5 * level  # isochoric pure shear: ε_s proportional to level
+    strain[:, :, 1] = -steps[:, None] * 0.5 * level
+    stress = np.tile([-P0, -3 * P0, -1.5 * P0, 0, 0, 0], (3, len(xy), 1))
+    ds = xr.Dataset({"strain": (("step", "gp", "comp"), strain), "stress": (("step", "gp", "comp"), stress),
+                     "gp_position": (("gp", "xyz"), np.column_stack([xy, np.zeros(len(xy))])),
+                     "axial_strain": (("step",), [0.0, 0.05, 0.1])})
+    m = band_metrics(ds)
+    assert m["inclination_deg"] == pytest.approx(58.0, abs=1.0)
+    assert m["width_m"] == pytest.approx(0.008, rel=0.25)
+    expected_ratio = 0.3 / np.mean(level)
+    assert m["band_ratio"] == pytest.approx(expected_ratio, rel=0.1)
+
+
+def test_element_angles_of_a_known_response():
+    """Plane strain with σ1 = 3 σ3 at the peak (sin φ = 0.5, φ = 30°) and strain increments of a
+    dilatancy angle of 10°; and N_q(30°) = 18.40 (Prandtl–Reissner)."""
+    n = 11
+    s1 = np.r_[np.linspace(1.0, 3.0, 6), np.full(5, 2.5)] * P0
+    stress = np.zeros((n, 1, 6))
+    stress[:, 0, 1], stress[:, 0, 0], stress[:, 0, 2] = -s1, -P0, -1.5 * P0
+    d1 = np.full(n - 1, 1e-3)
+    sin_psi = np.sin(np.radians(10.0))
+    d3 = -d1 * (1 + sin_psi) / (1 - sin_psi)  # −(d1 + d3)/(d1 − d3) = sin ψ
+    strain = np.zeros((n, 1, 6))
+    strain[1:, 0, 1] = -np.cumsum(d1)
+    strain[1:, 0, 0] = -np.cumsum(d3)
+    ds = xr.Dataset({"strain": (("step", "gp", "comp"), strain), "stress": (("step", "gp", "comp"), stress),
+                     "axial_strain": (("step",), np.r_[0, np.cumsum(d1)])}, attrs={"problem": "biaxial"})
+    a = element_angles(ds)
+    assert a["peak_friction_deg"] == pytest.approx(30.0, abs=1e-9)
+    assert a["dilatancy_at_peak_deg"] == pytest.approx(10.0, abs=1e-9)
+    assert bearing_capacity_factor(30.0) == pytest.approx(18.401, abs=1e-3)
+
+
+# ------------------------------------------------------------------------ bad input
+def _config(**sections) -> dict:
+    config = yaml.safe_load((ROOT / "config" / "tiny.yaml").read_text())
+    config["problems"] = ["biaxial", "footing"]
+    for name, values in sections.items():
+        config[name] = {**config.get(name, {}), **values} if isinstance(values, dict) else values
+    return config
+
+
+@pytest.mark.parametrize("sections, key", [
+    ({"problems": ["cavity"]}, "'problems[0]'"),
+    ({"biaxial": {"weak_zone": {"center": [0.2, 0.05], "radius": 0.01}}}, "'biaxial.weak_zone'"),
+    ({"biaxial": {"weak_zone": {"center": [0.0125, 0.04], "radius": 0.001}}}, "'biaxial.weak_zone'"),
+    ({"footing": {"width": 1.2}}, "'footing.width'"),
+    ({"footing": {"symmetry": "quarter"}}, "'footing.symmetry'"),
+    ({"biaxial": {"load_paths": {"pull": {"segments": [[5, -0.01]]}}}}, "'biaxial.load_paths.pull.segments'"),
+    ({"footing": {"load_paths": {"deep": {"segments": [[5, 1.5]]}}}}, "'footing.load_paths.deep.segments'"),
+    ({"biaxial": {"elements": [3, 3, 6]}}, "'biaxial.elements'"),
+    ({"biaxial": {"element": "hex8"}}, "'biaxial.element'"),
+    ({"footing": {"domain": [0.5, 0.3, 0.2]}}, "'footing.domain'"),
+    ({"biaxial": {"uniform_field": True}}, "'biaxial.uniform_field'"),
+])
+def test_bad_problem_settings_name_the_key_and_write_nothing(tmp_path, sections, key):
+    config = _config(output_dir=str(tmp_path / "out"), **sections)
+    with pytest.raises((ConfigError, ProblemConfigError, ValueError)) as error:
+        config = validate_config(config)
+        for problem in config["problems"]:
+            for path in config[problem]["load_paths"]:
+                problem_and_path(config, problem, path)
+    assert key in str(error.value), str(error.value)
+    assert not (tmp_path / "out").exists()
+
+
+def test_unknown_problem_and_path_are_named():
+    config = validate_config(_config())
+    with pytest.raises(ValueError, match="config key 'problems': unknown problem 'cavity'"):
+        make_problem(config, "cavity")
+    with pytest.raises(KeyError, match="'biaxial.load_paths' defines"):
+        problem_and_path(config, "biaxial", "path2")
+
+
+def test_the_weak_zone_gets_the_weak_packing():
+    """DEM: the weak zone's points start from the weak packing (appended to the list); without one the
+    run refuses to start, naming the key."""
+    config = validate_config(_config())
+    problem = make_problem(config, "biaxial")
+    packings, assignment = dem_packings(problem, config, ["p0.gz"], "weak.gz")
+    assert packings == ["p0.gz", "weak.gz"]
+    assert np.array_equal(assignment, problem.zones()) and 0 < assignment.sum() < problem.n_gauss_points
+    with pytest.raises(ValueError, match="'biaxial.weak_zone'"):
+        dem_packings(problem, config, ["p0.gz"], None)
+
+
+# ------------------------------------------------------------------------ real YADE
+BIAXIAL_DEM = {"elements": [2, 4], "weak_zone": {"center": [0.0125, 0.04], "radius": 0.01},
+               "load_paths": {"p": {"segments": [[4, 0.02], [2, 0.01], [10, 0.1]]}}}
+
+
+def dem_biaxial_config(tmp_path: Path) -> dict:
+    config = tiny_config(tmp_path / "o", {"path1": [[2, 0.002]]}, snapshot_interval=3)
+    config["biaxial"].update(BIAXIAL_DEM)
+    return validate_config(config)
+
+
+@pytest.mark.slow
+def test_biaxial_with_yade_rves_forms_a_band(tmp_path_factory, tmp_path):
+    """32 RVEs of 100 spheres, two of them weak (μ 0.2): past the peak a band carries at least twice
+    the specimen's mean shear strain."""
+    strong, _ = packing(tmp_path_factory)
+    weak, _ = packing(tmp_path_factory, friction=0.2)
+    from granular_multiscale.drivers.fem_dem import run_fem_dem
+
+    ds = run_fem_dem(dem_biaxial_config(tmp_path), "p", [str(strong)], tmp_path / "b.h5", None, 2,
+                     problem="biaxial", weak_packing=str(weak))
+    m = band_metrics(ds)
+    assert m["band_ratio"] >= 2.0, m
+    assert ds.load_force.values[-1] < ds.load_force.max()  # softened past the peak
+    assert ds.attrs["method"] == "dem" and ds.attrs["problem"] == "biaxial"
+
+
+RUNNER = """
+import pickle, sys
+from granular_multiscale.drivers.fem_dem import run_fem_dem
+from granular_multiscale.runlog import setup_logging
+config, packings, weak, output, checkpoint = pickle.load(open(sys.argv[1], "rb"))
+run_fem_dem(config, "p", packings, output, checkpoint, 2, logger=setup_logging(None), problem="biaxial",
+            weak_packing=weak)
+"""
+
+
+def _start(tmp_path, args) -> subprocess.Popen:
+    file = tmp_path / f"args_{time.monotonic_ns()}.pkl"
+    file.write_bytes(pickle.dumps(args))
+    return subprocess.Popen([sys.executable, "-c", RUNNER, str(file)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+
+@pytest.mark.slow
+def test_biaxial_fem_dem_resumes_after_kill_9_bit_for_bit(tmp_path_factory, tmp_path):
+    strong, _ = packing(tmp_path_factory)
+    weak, _ = packing(tmp_path_factory, friction=0.2)
+    config = dem_biaxial_config(tmp_path)
+    config["biaxial"]["load_paths"] = {"p": {"segments": [[4, 0.02], [2, 0.01], [2, 0.02]]}}
+    from granular_multiscale.drivers.fem_dem import run_fem_dem
+
+    whole = run_fem_dem(config, "p", [str(strong)], tmp_path / "whole.h5", None, 2, problem="biaxial",
+                        weak_packing=str(weak))
+    checkpoint = tmp_path / "ck" / "b.ckpt"
+    args = (config, [str(strong)], str(weak), str(tmp_path / "b.h5"), str(checkpoint))
+    proc = _start(tmp_path, args)
+    deadline, step = time.time() + 600, -1
+    while time.time() < deadline and proc.poll() is None:
+        try:
+            step = pickle.loads(checkpoint.read_bytes())["step"]
+        except Exception:
+            pass
+        if step >= 4:
+            os.killpg(proc.pid, signal.SIGKILL)
+            break
+        time.sleep(0.02)
+    proc.wait()
+    assert proc.returncode == -signal.SIGKILL and 4 <= step < 8, proc.stderr.read()[-2000:]
+    resumed = _start(tmp_path, args)
+    _, err = resumed.communicate(timeout=600)
+    assert resumed.returncode == 0, err[-3000:]
+    assert f"resuming from checkpoint {checkpoint} after step {step}" in err
+    again = read_run(tmp_path / "b.h5")
+    for name in ("strain", "stress", "tangent", "displacement", "load_force", "newton_iterations", "particle_steps"):
+        assert np.array_equal(whole[name].values, again[name].values), name
