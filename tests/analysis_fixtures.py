@@ -88,6 +88,8 @@ def make_run(kind: str = "reference", path: LoadPath = PATH2, size=(0.5, 0.5, 1.
             "displacement": (("step", "node", "xyz"), displacement, {"units": "m"}),
             "axial_strain": (("step",), ea, {"units": "1"}),
             "top_force": (("step",), top_force, {"units": "N"}),
+            "load_force": (("step",), -top_force, {"units": "N"}),
+            "load_displacement": (("step",), ea * height, {"units": "m"}),
             "volumetric_strain": (("step",), strain[:, :, :3].sum(axis=2).mean(axis=1), {"units": "1"}),
             "newton_iterations": (("step",), np.r_[0, rng.integers(2, 6, n_step - 1)]),
             "wall_time": (("step",), np.r_[0.0, np.full(n_step - 1, wall_per_step)], {"units": "s"}),

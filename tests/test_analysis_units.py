@@ -97,7 +97,8 @@ def test_hex_elements_rejects_foreign_node_order():
 def test_cell_average_uses_element_times_eight_plus_q():
     gp_values = np.arange(16.0)  # element 0 -> 0..7, element 1 -> 8..15
     np.testing.assert_allclose(fields.cell_average(gp_values, 2), [3.5, 11.5])
-    with pytest.raises(ValueError, match="8 each"):
+    np.testing.assert_allclose(fields.cell_average(gp_values, 4), [1.5, 5.5, 9.5, 13.5])  # quadrilaterals: 4 each
+    with pytest.raises(ValueError, match="8 or 4 each"):
         fields.cell_average(gp_values, 3)
 
 

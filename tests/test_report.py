@@ -32,6 +32,9 @@ FIGURES = [
     "speed_vs_error.png",
     "calibration.png",
 ]
+PROBLEM_PRODUCTS = ["figures/biaxial/response.png", "figures/biaxial/fields_biaxial.png", "figures/footing/response.png",
+                    "figures/footing/fields_footing.png", "tables/biaxial_bands.csv", "tables/footing.csv",
+                    "tables/rve_angles.csv", "vtk/biaxial/biaxial", "vtk/footing/footing"]
 TABLES = ["speedup.csv", "speedup.html", "accuracy.csv", "accuracy.html", "surrogate_cost.csv", "surrogate_cost.html",
           "calibration.csv", "calibration.html", "validation_by_phase.csv", "validation_by_phase.html"]
 
@@ -59,6 +62,8 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     out = tmp_path / "tiny"
     override = tmp_path / "override.yaml"
     settings = {"output_dir": str(out), "reference_material": reference}  # training epochs as config/tiny.yaml sets them
+    if reference == "dem":  # (the problems with YADE RVEs: tests/test_problems.py)
+        settings["problems"] = []
     if reference == "dem":  # the reference's own error on the front page: a two-variant tolerance study
         settings["tolerance_study"] = {"converged": "tight", "baseline": "default", "variants": {
             "default": {"tolerance": 2.0e-3, "max_iterations": 30}, "tight": {"tolerance": 5.0e-4}}}
@@ -68,6 +73,8 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     # surrogate stage's own metric tables, which its tests cover)
     targets = [f"{out}/figures/{name}" for name in FIGURES] + [f"{out}/tables/{name}" for name in TABLES]
     targets += [f"{out}/tables/headline.json", f"{out}/vtk/reference/path2", f"{out}/vtk/fem_ml/path2"]
+    if reference == "elastoplastic":  # the problems beyond the triaxial specimen, as `all` makes them
+        targets += [f"{out}/{name}" for name in PROBLEM_PRODUCTS]
     report = out / "report.html"
     if reference == "elastoplastic":
         snakemake("-j2", *config_args, "--report", str(report), "--report-after-run", "--", *targets)
@@ -113,6 +120,17 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     description = plain(raw)
     if reference == "elastoplastic":
         assert "Analytic elastoplastic model" in description and "not FEM–DEM" in description
+        # the problems: named on the front page, each product in its category with its caption
+        assert "plane-strain biaxial test: 50 × 100 mm, 2 × 4 quad8 elements, 32 Gauss points (RVEs)" in description
+        assert "strip footing: width 100 mm, half of a domain" in description
+        assert "7 Problems beyond the triaxial specimen" in html
+        for name in PROBLEM_PRODUCTS:
+            if not name.startswith("vtk/"):
+                assert f'"name": "{Path(name).name}"' in html, f"{name} missing from the report"
+        bands = pd.read_csv(out / "tables" / "biaxial_bands.csv")
+        assert list(bands["mesh"]) == ["2x4"] and bands["Gauss points"].iloc[0] == 32
+        assert (out / "vtk" / "biaxial" / "biaxial" / "biaxial_biaxial.pvd").is_file()
+        assert len(list((out / "vtk" / "biaxial" / "biaxial").glob("*.vtu"))) == 17  # step 0 and 16 load steps
     else:
         assert "YADE RVEs of 150 spheres" in description and "Analytic" not in description
         assert (out / "fem_dem" / "path1.h5").is_file() and (out / "rve" / "summary.json").is_file()

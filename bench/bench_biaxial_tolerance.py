@@ -1,0 +1,94 @@
+"""The biaxial FEM–DEM reference's own error: the same run at the default Newton tolerance of the
+plane-strain problems (biaxial.dem_newton.tolerance, 0.01) and at tighter ones, side by side.
+
+    .venv/bin/python bench/bench_biaxial_tolerance.py                    # tiny: 2 x 4 mesh, 100 spheres
+    .venv/bin/python bench/bench_biaxial_tolerance.py --tolerances 0.01 0.005 --out ...
+
+Each run uses the configured weak zone and path (the tiny scale: config/tiny.yaml's biaxial section
+with RVEs of --spheres spheres). Printed and written (JSON, --out) per tolerance: the largest
+platen-force difference to the tightest run over the path (in % of its peak), before and after
+that peak, the band metrics and their differences, Newton iterations, cutbacks, DEM particle-steps
+and the wall time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import platform
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from granular_multiscale.analysis.bands import band_metrics
+from granular_multiscale.analysis.tables import machine_description
+from granular_multiscale.config import CONFIG_DIR, load_config
+from granular_multiscale.dem.rve import RVESpec, prepare_packing
+from granular_multiscale.drivers.fem_dem import run_fem_dem
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--config", type=Path, default=CONFIG_DIR / "tiny.yaml")
+    parser.add_argument("--spheres", type=int, default=100)
+    parser.add_argument("--tolerances", type=float, nargs="+", default=[0.01, 0.004])
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "biaxial_tolerance.json")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    work = args.out.parent / "biaxial_tolerance_runs"
+    work.mkdir(parents=True, exist_ok=True)
+    config = load_config(args.config, overrides={"dem.n_spheres": args.spheres})
+    packings = {}
+    for name, friction in (("strong", config["dem"]["friction"]), ("weak", config["biaxial"]["weak_zone"]["dem_friction"])):
+        packings[name] = work / f"packing_{args.spheres}_{name}.yade.gz"
+        if not packings[name].exists():
+            spec = RVESpec.from_config(config, config["seed"])
+            spec.friction = float(friction)
+            prepare_packing(spec, packings[name])
+    path = list(config["biaxial"]["load_paths"])[0]
+    runs, rows = {}, []
+    for tol in sorted(args.tolerances, reverse=True):
+        config["biaxial"]["dem_newton"]["tolerance"] = tol
+        t0 = time.perf_counter()
+        runs[tol] = run_fem_dem(config, path, [str(packings["strong"])], work / f"tol_{tol:g}.h5", None, args.workers,
+                                problem="biaxial", weak_packing=str(packings["weak"]))
+        rows.append({"tolerance": tol, "wall_s": time.perf_counter() - t0})
+    tight = runs[min(runs)]
+    f_ref = tight["load_force"].values
+    peak = int(np.argmax(f_ref))
+    m_ref = band_metrics(tight)
+    for row in rows:
+        ds = runs[row["tolerance"]]
+        f = ds["load_force"].values
+        m = band_metrics(ds)
+        row.update({
+            "force_diff_before_peak_pct": 100 * float(np.abs(f - f_ref)[: peak + 1].max() / f_ref.max()),
+            "force_diff_after_peak_pct": 100 * float(np.abs(f - f_ref)[peak:].max() / f_ref.max()),
+            "volumetric_strain_diff_pct": 100 * float(np.abs(ds["volumetric_strain"].values - tight["volumetric_strain"].values).max()
+                                                      / np.abs(tight["volumetric_strain"].values).max()),
+            "inclination_deg": m["inclination_deg"], "inclination_diff_deg": m["inclination_deg"] - m_ref["inclination_deg"],
+            "onset_pct": 100 * m["onset_load"], "onset_diff_pct": 100 * (m["onset_load"] - m_ref["onset_load"]),
+            "band_ratio": m["band_ratio"], "width_mm": 1e3 * m["width_m"],
+            "newton_iterations": int(ds["newton_iterations"].sum()), "cutbacks": int(ds["cutbacks"].sum()),
+            "particle_steps": float(ds.attrs["dem_particle_steps"]),
+        })
+    table = pd.DataFrame(rows)
+    print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    payload = {"bench": "biaxial_tolerance", "commit": commit, "date": time.strftime("%Y-%m-%d %H:%M"),
+               "machine": {**machine_description(), "python": platform.python_version()},
+               "settings": {"config": str(args.config), "spheres": args.spheres, "biaxial": config["biaxial"]},
+               "rows": rows}
+    args.out.write_text(json.dumps(payload, indent=1, default=float))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
