@@ -25,7 +25,7 @@ from granular_multiscale.analysis.angles import bearing_capacity_factor, element
 from granular_multiscale.analysis.bands import band_metrics
 from granular_multiscale.config import ConfigError, validate_config
 from granular_multiscale.data import read_run
-from granular_multiscale.drivers.problems import analytic_material, dem_packings, problem_and_path
+from granular_multiscale.drivers.problems import analytic_material, check_problems, dem_packings, problem_and_path
 from granular_multiscale.drivers.reference import run_fem_reference
 from granular_multiscale.fem import make_problem
 from granular_multiscale.fem.biaxial import BiaxialProblem, ProblemConfigError
@@ -57,21 +57,23 @@ def softening_config(tmp_path: Path, **sections) -> dict:
 
 # ------------------------------------------------------------------------ closed form
 def test_biaxial_elastic_plane_strain_is_the_closed_form():
-    """A homogeneous elastic specimen: uniform plane-strain field, ε_zz = 0, the platen force and the
-    lateral strain of plane-strain elasticity (E' = E/(1 − ν²), ν' = ν/(1 − ν)), σ_zz = −p0 + ν Δ(σxx + σyy)."""
+    """A homogeneous elastic specimen in the x–z plane: uniform plane-strain field, ε_yy = 0, the
+    platen force and the lateral strain of plane-strain elasticity (E' = E/(1 − ν²), ν' = ν/(1 − ν)),
+    the out-of-plane σ_yy = −p0 + ν Δ(σxx + σzz)."""
     problem = BiaxialProblem(size=(0.05, 0.1), elements=(3, 6), weak_zone=None)
     ds = problem.run(elastic(problem), LoadPath("p", ((4, 0.004),)), progress=False)
     strain, stress = ds.strain.values, ds.stress.values
-    assert np.abs(strain[:, :, 2:5]).max() == 0.0  # ε_zz = γ_yz = γ_xz = 0 at every Gauss point
+    assert np.abs(strain[:, :, [1, 3, 5]]).max() == 0.0  # ε_yy = γ_yz = γ_xy = 0 at every Gauss point
     axial = ds.axial_strain.values
     e_plane, nu_plane = E / (1 - NU**2), NU / (1 - NU)
     width = 0.05
     np.testing.assert_allclose(ds.load_force.values, P0 * width + e_plane * axial * width, rtol=1e-9)
     np.testing.assert_allclose(ds.top_force.values, -ds.load_force.values, rtol=0)
     np.testing.assert_allclose(ds.lateral_strain.values, nu_plane * axial, rtol=1e-9, atol=1e-15)
-    np.testing.assert_allclose(strain[-1, :, 1], -axial[-1], rtol=1e-9)
-    d_sigma = stress[-1, :, 0] + stress[-1, :, 1] + 2 * P0
-    np.testing.assert_allclose(stress[-1, :, 2], -P0 + NU * d_sigma, rtol=1e-9)
+    np.testing.assert_allclose(strain[-1, :, 2], -axial[-1], rtol=1e-9)
+    d_sigma = stress[-1, :, 0] + stress[-1, :, 2] + 2 * P0
+    np.testing.assert_allclose(stress[-1, :, 1], -P0 + NU * d_sigma, rtol=1e-9)
+    assert np.abs(ds.gp_position.sel(xyz="y").values).max() == 0.0
     assert np.ptp(stress[-1], axis=0).max() < 1e-6 * P0  # homogeneous
     assert ds.attrs["plane_strain"] == 1 and ds.sizes["gp"] == 72 and ds.attrs["problem"] == "biaxial"
     np.testing.assert_allclose(ds.load_displacement.values, axial * 0.1, rtol=0)
@@ -110,8 +112,8 @@ def test_footing_half_domain_equals_the_full_domain(tmp_path):
     np.testing.assert_allclose(full.footing_pressure.values, half.footing_pressure.values, rtol=1e-6)
     plane = np.abs(full.node_position.values[:, 0]) < 1e-12
     ux = full.displacement.sel(xyz="x").values[:, plane]
-    uy = full.displacement.sel(xyz="y").values[:, plane]
-    assert np.abs(ux).max() < 1e-9 * np.abs(uy).max()
+    uz = full.displacement.sel(xyz="z").values[:, plane]
+    assert np.abs(ux).max() < 1e-9 * np.abs(uz).max()
     assert np.all(np.diff(half.footing_pressure.values) > 0)
     assert half.footing_pressure.values[-1] > 3 * P0  # several times the surcharge at 6 % of B
 
@@ -165,8 +167,9 @@ def test_a_step_without_equilibrium_stops_naming_it_and_keeps_the_converged_step
 
 # ------------------------------------------------------------------------ metrics
 def test_band_metrics_find_a_band_of_known_inclination_and_width():
-    """Gauss points on a grid, shear strain 0.3 in a strip at 58° from the x axis, 8 mm wide, 0.05
-    elsewhere; the minor principal stress along x: the metrics recover 58° and about 8 mm."""
+    """Gauss points on a grid of the x–z plane, shear strain 0.3 in a strip at 58° from the x axis,
+    8 mm wide, 0.05 elsewhere; the minor principal stress along x: the metrics recover 58° and
+    about 8 mm."""
     x, y = np.meshgrid(np.linspace(0.001, 0.049, 40), np.linspace(0.001, 0.099, 80))
     xy = np.column_stack([x.ravel(), y.ravel()])
     theta = np.radians(58.0)
@@ -175,10 +178,10 @@ def test_band_metrics_find_a_band_of_known_inclination_and_width():
     steps = np.array([0.0, 0.5, 1.0])
     strain = np.zeros((3, len(xy), 6))
     strain[:, :, 0] = steps[:, None] * 0.5 * level  # isochoric pure shear: ε_s proportional to level
-    strain[:, :, 1] = -steps[:, None] * 0.5 * level
-    stress = np.tile([-P0, -3 * P0, -1.5 * P0, 0, 0, 0], (3, len(xy), 1))
+    strain[:, :, 2] = -steps[:, None] * 0.5 * level
+    stress = np.tile([-P0, -1.5 * P0, -3 * P0, 0, 0, 0], (3, len(xy), 1))
     ds = xr.Dataset({"strain": (("step", "gp", "comp"), strain), "stress": (("step", "gp", "comp"), stress),
-                     "gp_position": (("gp", "xyz"), np.column_stack([xy, np.zeros(len(xy))])),
+                     "gp_position": (("gp", "xyz"), np.column_stack([xy[:, 0], np.zeros(len(xy)), xy[:, 1]])),
                      "axial_strain": (("step",), [0.0, 0.05, 0.1])})
     m = band_metrics(ds)
     assert m["inclination_deg"] == pytest.approx(58.0, abs=1.0)
@@ -193,12 +196,12 @@ def test_element_angles_of_a_known_response():
     n = 11
     s1 = np.r_[np.linspace(1.0, 3.0, 6), np.full(5, 2.5)] * P0
     stress = np.zeros((n, 1, 6))
-    stress[:, 0, 1], stress[:, 0, 0], stress[:, 0, 2] = -s1, -P0, -1.5 * P0
+    stress[:, 0, 2], stress[:, 0, 0], stress[:, 0, 1] = -s1, -P0, -1.5 * P0
     d1 = np.full(n - 1, 1e-3)
     sin_psi = np.sin(np.radians(10.0))
     d3 = -d1 * (1 + sin_psi) / (1 - sin_psi)  # −(d1 + d3)/(d1 − d3) = sin ψ
     strain = np.zeros((n, 1, 6))
-    strain[1:, 0, 1] = -np.cumsum(d1)
+    strain[1:, 0, 2] = -np.cumsum(d1)
     strain[1:, 0, 0] = -np.cumsum(d3)
     ds = xr.Dataset({"strain": (("step", "gp", "comp"), strain), "stress": (("step", "gp", "comp"), stress),
                      "axial_strain": (("step",), np.r_[0, np.cumsum(d1)])}, attrs={"problem": "biaxial"})
@@ -233,12 +236,23 @@ def _config(**sections) -> dict:
 def test_bad_problem_settings_name_the_key_and_write_nothing(tmp_path, sections, key):
     config = _config(output_dir=str(tmp_path / "out"), **sections)
     with pytest.raises((ConfigError, ProblemConfigError, ValueError)) as error:
-        config = validate_config(config)
-        for problem in config["problems"]:
-            for path in config[problem]["load_paths"]:
-                problem_and_path(config, problem, path)
+        check_problems(validate_config(config))
     assert key in str(error.value), str(error.value)
     assert not (tmp_path / "out").exists()
+
+
+def test_the_workflow_refuses_a_weak_zone_outside_the_mesh_before_any_rule_runs(tmp_path):
+    """`snakemake -n all` stops at once with one line naming the key, and writes nothing."""
+    out = tmp_path / "out"
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({"output_dir": str(out), "biaxial": {"weak_zone": {"center": [0.2, 0.05],
+                                                                                      "radius": 0.01}}}))
+    result = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--configfile", "config/tiny.yaml", str(bad)],
+                            cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert result.returncode != 0
+    assert "Configuration error: config key 'biaxial.weak_zone': center [0.2, 0.05] lies outside the specimen" \
+        in result.stderr, result.stderr[-2000:]
+    assert not out.exists()
 
 
 def test_unknown_problem_and_path_are_named():
@@ -337,3 +351,44 @@ def test_biaxial_fem_dem_resumes_after_kill_9_bit_for_bit(tmp_path_factory, tmp_
     again = read_run(tmp_path / "b.h5")
     for name in ("strain", "stress", "tangent", "displacement", "load_force", "newton_iterations", "particle_steps"):
         assert np.array_equal(whole[name].values, again[name].values), name
+
+
+@pytest.mark.slow
+def test_every_driver_runs_the_biaxial_test(tmp_path_factory, tmp_path):
+    """FEM–ML and the adaptive set on the biaxial test: FEM–ML runs the path with the networks at
+    every point, and the adaptive run with every point an anchor is FEM–DEM bit for bit (same
+    problem, packings, weak zone and Newton settings)."""
+    import torch
+
+    from granular_multiscale.drivers.adaptive import run_adaptive
+    from granular_multiscale.drivers.fem_dem import dem_newton_config, run_fem_dem
+    from granular_multiscale.drivers.fem_ml import run_fem_ml
+    from granular_multiscale.materials.elastoplastic import Elastoplastic
+    from granular_multiscale.paths import load_paths_from_config
+    from granular_multiscale.surrogate.dataset import build_dataset
+    from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
+    from granular_multiscale.surrogate.training import train
+
+    torch.set_num_threads(1)
+    strong, _ = packing(tmp_path_factory)
+    weak, _ = packing(tmp_path_factory, friction=0.2)
+    config = dem_biaxial_config(tmp_path)
+    config["biaxial"]["load_paths"] = {"p": {"segments": [[3, 0.006]]}}
+    config["surrogate"].update(newton={}, ensemble_size=2, epochs=150, learning_rate=5e-3, batch_size=256)
+    path = load_paths_from_config(config)["path1"]
+    run = material_point_run(Elastoplastic.from_config(12, config), triaxial_strain_paths(path, 12, seed=2), path)
+    sigma, _, _ = train(*build_dataset(run, 0.75, seed=0), "sigma", config["surrogate"], seed=0, config=config)
+    sigma.save(tmp_path / "sigma.pt")
+
+    ml = run_fem_ml(config, "p", tmp_path / "sigma.pt", None, "autodiff", progress=False, problem="biaxial")
+    assert ml.attrs["problem"] == "biaxial" and ml.sizes == {**ml.sizes, "step": 4, "gp": 32}
+    assert np.all(np.diff(ml.load_force.values) > 0)  # compression raises the platen force
+
+    packings = [str(strong)]
+    dem = run_fem_dem(config, "p", packings, tmp_path / "dem.h5", None, 2, problem="biaxial", weak_packing=str(weak))
+    every = {**config, "adaptive": {**config["adaptive"], "anchor_fraction": 1.0}}
+    mixed = run_adaptive(every, "p", np.inf, packings, tmp_path / "sigma.pt", None, "autodiff", n_workers=2,
+                         problem="biaxial", weak_packing=str(weak))
+    for name in ("strain", "stress", "load_force", "newton_iterations"):
+        assert np.array_equal(mixed[name].values, dem[name].values), name
+    assert dem_newton_config(config, "biaxial")["newton"]["tolerance"] == 0.02

@@ -2,8 +2,8 @@
 
 Every problem (attribute ``problem``: triaxial, biaxial, footing; ``fem/``) writes the same
 variables; each adds its own observables. Plane-strain problems (attribute ``plane_strain`` 1)
-lie in the x–y plane (y vertical, z = 0), their strains have ε_zz = γ_xz = γ_yz = 0 and their
-forces are per metre of thickness (units N/m).
+lie in the x–z plane (z vertical as in the triaxial specimen, y = 0 out of plane), their strains
+have ε_yy = γ_xy = γ_yz = 0 and their forces are per metre of thickness (units N/m).
 
 Coordinates
     step   load step, 0 = consolidated initial state

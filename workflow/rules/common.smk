@@ -2,11 +2,13 @@
 import sys
 
 from granular_multiscale.config import ConfigError, validate_config
+from granular_multiscale.drivers.problems import check_problems
 from granular_multiscale.paths import load_paths_from_config
 
 try:
     config.update(validate_config(config))
-except ConfigError as error:
+    check_problems(config)  # the problems' meshes, weak zones and load paths, before any rule runs
+except (ConfigError, ValueError) as error:
     sys.exit(f"Configuration error: {error}")
 
 OUT = config["output_dir"].rstrip("/")

@@ -10,7 +10,8 @@
 #                      and in plane-strain compression, for its friction and dilatancy angles
 #   table_rve_angles, figure_problem_response, figure_problem_fields, table_bands, table_footing,
 #   vtk_problem        what the report shows of each problem
-#   biaxial_mesh_study (not in `all`) the biaxial test on the meshes of analysis.biaxial_meshes
+#   biaxial_mesh_study (not in `all`) the biaxial test's first load path on the meshes of
+#                      analysis.biaxial_meshes ({OUT}/biaxial_mesh/; the configured mesh's run is reused)
 
 PROBLEMS = list(config["problems"])
 PROBLEM_CASES = {p: list(config[p]["load_paths"]) for p in PROBLEMS}
@@ -250,6 +251,13 @@ rule vtk_problem:
 BIAXIAL_MESHES = ["x".join(map(str, m)) for m in config["analysis"]["biaxial_meshes"]]
 
 
+def biaxial_mesh_run(mesh):
+    """The biaxial run of a mesh of the study: the problem's own run at its configured mesh."""
+    if [int(v) for v in mesh.split("x")] == list(config["biaxial"]["elements"]):
+        return problem_run("biaxial", list(config["biaxial"]["load_paths"])[0])
+    return f"{OUT}/biaxial_mesh/{REFERENCE}/{mesh}.h5"
+
+
 use rule problem_fem_dem as biaxial_mesh_fem_dem with:
     input:
         packings=PACKINGS,
@@ -288,7 +296,7 @@ use rule problem_fem_elastoplastic as biaxial_mesh_fem_elastoplastic with:
 
 rule biaxial_mesh_study:
     input:
-        runs=[f"{OUT}/biaxial_mesh/{REFERENCE}/{m}.h5" for m in BIAXIAL_MESHES],
+        runs=[biaxial_mesh_run(m) for m in BIAXIAL_MESHES],
     output:
         csv=report(f"{OUT}/tables/biaxial_mesh_study.csv", caption="../report/mesh_study.rst",
                    category=CAT_PROBLEMS, subcategory="biaxial"),

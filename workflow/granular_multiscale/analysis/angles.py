@@ -4,8 +4,8 @@ capacity factor N_q.
 
     angles = element_angles(run)     # a uniform-field triaxial or plane-strain run
 
-Principal stresses and strains compression positive: σ1, ε1 axial (triaxial z, plane strain
-y), σ3, ε3 lateral (x). Mobilised friction sin φ = (σ1 − σ3)/(σ1 + σ3); the peak friction angle
+Principal stresses and strains compression positive: σ1, ε1 axial (z), σ3, ε3 lateral (x; in
+plane strain y is the out-of-plane direction). Mobilised friction sin φ = (σ1 − σ3)/(σ1 + σ3); the peak friction angle
 is its largest value over the run. Dilatancy from the strain increments of a step (total
 strains; near the peak the elastic part is small), dε_v = dε1 + 2 dε3 (triaxial) or
 dε1 + dε3 (plane strain, ε2 = 0):
@@ -26,8 +26,8 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-#: (axial, lateral) Voigt components of the element tests
-AXES = {"triaxial": (2, 0), "biaxial": (1, 0)}
+#: (axial, lateral) Voigt components of the element tests (z axial in both)
+AXES = {"triaxial": (2, 0), "biaxial": (2, 0)}
 
 
 def element_angles(run: xr.Dataset) -> dict:

@@ -79,9 +79,9 @@ def _width(xy: np.ndarray, strain: np.ndarray, theta: float, offset: float, reac
 
 
 def minor_principal_direction(stress: np.ndarray) -> np.ndarray:
-    """Unit vector (x, y) of the least compressive in-plane principal stress of the mean stress [n_gp, 6]."""
+    """Unit vector (x, z) of the least compressive in-plane principal stress of the mean stress [n_gp, 6]."""
     mean = stress.mean(axis=0)
-    tensor = np.array([[mean[0], mean[5]], [mean[5], mean[1]]])
+    tensor = np.array([[mean[0], mean[4]], [mean[4], mean[2]]])  # σxx, σxz, σzz
     values, vectors = np.linalg.eigh(tensor)
     return vectors[:, int(np.argmax(values))]  # tension positive: the largest is the least compressive
 
@@ -90,7 +90,7 @@ def band_metrics(run: xr.Dataset, step: int = -1, onset_ratio: float = ONSET_RAT
     """The band of a plane-strain run at `step` (see the module docstring); lengths in m, angles in degrees."""
     n_steps = run.sizes["step"]
     step = step % n_steps
-    xy = run["gp_position"].transpose("gp", "xyz").values[:, :2]
+    xy = run["gp_position"].transpose("gp", "xyz").values[:, [0, 2]]  # the plane of the body: x, z
     strain = shear_strain(run, step)
     spacing = _spacing(xy)
     reach = float(np.ptp(xy[:, 0]) + spacing) / 3.0

@@ -5,7 +5,7 @@ The run files store node positions in scikit-fem's node order, the elements' ver
 4 for quadrilaterals). A triaxial run written before the files held ``element_vertices`` has
 its connectivity rebuilt from the node positions (a tensor-product grid, checked against
 them); hexahedra are passed to VTK in VTK's vertex order (bottom quad, then top quad),
-quadrilaterals (plane strain, in the x–y plane) as they are.
+quadrilaterals (plane strain, in the x–z plane) as they are.
 
 Gauss-point values are shown as cell averages (mean of the element's points), nodal
 displacement as point data; the mesh is drawn deformed by the run's own displacement.

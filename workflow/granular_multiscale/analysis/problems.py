@@ -32,6 +32,8 @@ from .bands import band_metrics  # noqa: E402
 from .figures import save_figure, style  # noqa: E402
 from .selection import resolve_steps  # noqa: E402
 
+#: the axes (x, z) of the plane-strain problems' plane
+PLANE = [0, 2]
 #: name -> (label, unit, per-Gauss-point values of a run at a step)
 FIELDS = {
     "shear_strain": ("equivalent shear strain ε_s", "%",
@@ -87,10 +89,10 @@ def response_figure(runs: Mapping[str, xr.Dataset], out, *, title: str, figsize=
 
 def gauss_point_cells(ds: xr.Dataset, step: int, scale: float = 1.0) -> np.ndarray:
     """[n_gp, 4, 2] the quarter of its element around each Gauss point, on the deformed mesh."""
-    nodes = ds["node_position"].values[:, :2]
-    moved = nodes + scale * ds["displacement"].isel(step=step).transpose("node", "xyz").values[:, :2]
+    nodes = ds["node_position"].values[:, PLANE]
+    moved = nodes + scale * ds["displacement"].isel(step=step).transpose("node", "xyz").values[:, PLANE]
     elements = ds["element_vertices"].transpose("element", "vertex").values.astype(int)
-    gp = ds["gp_position"].transpose("gp", "xyz").values[:, :2]
+    gp = ds["gp_position"].transpose("gp", "xyz").values[:, PLANE]
     per = gp.shape[0] // elements.shape[0]
     cells = np.empty((gp.shape[0], 4, 2))
     for e, vertices in enumerate(elements):
@@ -111,7 +113,7 @@ def field_figure(run: xr.Dataset, quantities: Sequence[str], steps: Sequence[int
     """Rows: load steps; columns: quantities of :data:`FIELDS`, each Gauss point's quarter coloured."""
     steps = resolve_steps(list(steps), run.sizes["step"])
     x, xlabel = load_axis(run)
-    nodes = run["node_position"].values[:, :2]
+    nodes = run["node_position"].values[:, PLANE]
     width, height = np.ptp(nodes[:, 0]), np.ptp(nodes[:, 1])
     ncols = len(quantities)
     if figsize is None:
@@ -235,8 +237,8 @@ def footing_table(runs: Mapping[str, xr.Dataset], angles: pd.DataFrame | None) -
             "pressure gain over the last 20 % of the settlement (%)": _late_gain(run["settlement_ratio"].values, q),
             "mean stress p/p0: smallest": float(p.min()),
             "mean stress p/p0: largest": float(p.max()),
-            "largest p at (x, y) m": f"({run['gp_position'].values[where[1], 0]:.3f}, "
-                                     f"{run['gp_position'].values[where[1], 1]:.3f})",
+            "largest p at (x, z) m": f"({run['gp_position'].values[where[1], 0]:.3f}, "
+                                     f"{run['gp_position'].values[where[1], 2]:.3f})",
             "largest shear strain ε_s (%)": 100 * float(shear.max()),
             "Gauss points": int(run.sizes["gp"]),
         }

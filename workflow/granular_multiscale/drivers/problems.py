@@ -39,6 +39,15 @@ def problem_and_path(config: dict, problem_name: str, path_name: str):
     return problem, load_path
 
 
+def check_problems(config: dict) -> None:
+    """Build every problem of ``problems`` and check each of its load paths: a setting that does
+    not fit (a weak zone outside the mesh, a footing wider than its domain, a path that pulls)
+    raises an error naming the config key before any rule runs."""
+    for name in config["problems"]:
+        for path in config[name]["load_paths"]:
+            problem_and_path(config, name, path)
+
+
 def weak_zone(config: dict, problem) -> dict | None:
     """The weak-zone settings of the problem's config section, where the problem has one with points in it."""
     if not problem.zones().any():

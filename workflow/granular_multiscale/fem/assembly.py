@@ -11,9 +11,12 @@ from scikit-fem (:data:`ELEMENTS`):
 * ``quad4``: ``ElementVector(ElementQuad1())``, bilinear quadrilaterals with full 2×2 Gauss
   integration (locks under isochoric flow; kept to measure that, docs/problems.md).
 
-Plane strain: the 2D mesh lies in the x–y plane (y vertical) and every Gauss point receives
-the full 6-component strain with ε_zz = γ_yz = γ_xz = 0, so the material-point sets are the
-same as in 3D (one 3D RVE per in-plane Gauss point); forces are per metre of thickness.
+Plane strain: the 2D mesh's coordinates (x, y) are the body's x (horizontal) and z (vertical,
+as in the triaxial specimen), and every Gauss point receives the full 6-component strain with
+ε_yy = γ_xy = γ_yz = 0 (y out of plane), so the material-point sets are the same as in 3D (one
+3D RVE per in-plane Gauss point) and see their axial direction where the triaxial specimen
+puts it; positions and displacements are written as (x, 0, z); forces are per metre of
+thickness.
 Residual and stiffness are then assembled here with numpy batched products and a
 precomputed scatter into a fixed CSR pattern, not with ``BilinearForm``: the tangent is a
 different 6×6 matrix at every Gauss point and changes every Newton iteration; a
@@ -68,20 +71,28 @@ def vector_basis(mesh, element: str = "hex8") -> Basis:
 def strain_operator(basis: Basis) -> np.ndarray:
     """B[e, q, 6, n_local] mapping element dofs to the engineering strain (Voigt 11,22,33,23,13,12).
 
-    A 2D basis (plane strain in x–y) leaves the rows of ε33, γ23 and γ13 zero."""
+    A 2D basis is the x–z plane of the body (plane strain, y out of plane): its rows of ε22, γ23
+    and γ12 are zero."""
     n_local = basis.Nbfun
     n_el, n_q = basis.dx.shape
     dim = basis.mesh.dim()
-    B = np.empty((n_el, n_q, 6, n_local)) if dim == 3 else np.zeros((n_el, n_q, 6, n_local))
+    if dim == 2:  # the mesh's (x, y) are the body's (x, z): ε_xx, ε_zz and γ_xz, the rest zero
+        B = np.zeros((n_el, n_q, 6, n_local))
+        for i in range(n_local):
+            G = basis.basis[i][0].grad
+            B[:, :, 0, i] = G[0, 0]
+            B[:, :, 2, i] = G[1, 1]
+            B[:, :, 4, i] = G[0, 1] + G[1, 0]
+        return B
+    B = np.empty((n_el, n_q, 6, n_local))
     for i in range(n_local):
         G = basis.basis[i][0].grad  # [component, direction, element, point] = ∂φ_i,c/∂x_j
         B[:, :, 0, i] = G[0, 0]
         B[:, :, 1, i] = G[1, 1]
+        B[:, :, 2, i] = G[2, 2]
+        B[:, :, 3, i] = G[1, 2] + G[2, 1]
+        B[:, :, 4, i] = G[0, 2] + G[2, 0]
         B[:, :, 5, i] = G[0, 1] + G[1, 0]
-        if dim == 3:
-            B[:, :, 2, i] = G[2, 2]
-            B[:, :, 3, i] = G[1, 2] + G[2, 1]
-            B[:, :, 4, i] = G[0, 2] + G[2, 0]
     return B
 
 
@@ -161,14 +172,19 @@ class GaussPointOperators:
         return self.csr(self.stiffness_data(tangent))
 
     def gauss_point_positions(self) -> np.ndarray:
-        """[n_gp, 3] coordinates of the Gauss points (gp = element * points_per_element + q; z = 0 in 2D)."""
+        """[n_gp, 3] coordinates of the Gauss points (gp = element * points_per_element + q; (x, 0, z) in 2D)."""
         x = np.asarray(self.basis.mapping.F(self.basis.X)).reshape(self.dim, -1).T  # [n_gp, dim]
         return _as_3d(x)
 
     @property
     def node_positions(self) -> np.ndarray:
-        """[n_nodes, 3] coordinates of the nodes (vertices, then mid-side nodes; z = 0 in 2D)."""
+        """[n_nodes, 3] coordinates of the nodes (vertices, then mid-side nodes; (x, 0, z) in 2D)."""
         return _as_3d(self._node_positions)
+
+    @property
+    def mesh_node_positions(self) -> np.ndarray:
+        """[n_nodes, dim] node coordinates in the mesh's own axes."""
+        return self._node_positions.copy()
 
     @property
     def n_nodes(self) -> int:
@@ -184,7 +200,7 @@ class GaussPointOperators:
         return np.tensordot(w, field, axes=(0, 0)) / w.sum()
 
     def nodal(self, u: np.ndarray) -> np.ndarray:
-        """Dof vector -> [n_nodes, 3] (z = 0 in 2D)."""
+        """Dof vector -> [n_nodes, 3] ((u_x, 0, u_z) in 2D)."""
         return _as_3d(u[self.node_dof_index])
 
     def node_dofs(self, nodes: np.ndarray, component: int) -> np.ndarray:
@@ -202,8 +218,8 @@ class GaussPointOperators:
 
 
 def _as_3d(x: np.ndarray) -> np.ndarray:
-    """[n, dim] -> [n, 3], a 2D plane padded with z = 0 (the data contract's xyz)."""
+    """[n, dim] -> [n, 3]: a 2D mesh's (x, y) are the body's (x, z), y = 0 (the data contract's xyz)."""
     x = np.asarray(x, dtype=float)
     if x.shape[1] == 3:
         return x.copy()
-    return np.hstack([x, np.zeros((x.shape[0], 3 - x.shape[1]))])
+    return np.column_stack([x[:, 0], np.zeros(x.shape[0]), x[:, 1]])

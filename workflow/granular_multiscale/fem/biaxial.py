@@ -5,23 +5,24 @@ band forms.
     problem = BiaxialProblem.from_config(config)     # config section ``biaxial``
     problem.zones()                                   # [n_gp] 1 inside the weak zone, else 0
 
-Geometry and constraint. The mesh lies in the x–y plane, x horizontal in [0, W], y vertical
-in [0, H], of quadrilaterals (``element``: quad8 by default, see ``assembly.py``). Plane
-strain: every Gauss point gets ε_zz = γ_xz = γ_yz = 0, one 3D RVE per in-plane Gauss point.
-Forces are per metre of thickness.
+Geometry and constraint. The specimen lies in the x–z plane, x horizontal in [0, W], z vertical
+in [0, H] as in the triaxial specimen, meshed with quadrilaterals (``element``: quad8 by
+default, see ``assembly.py``). Plane strain: every Gauss point gets ε_yy = γ_xy = γ_yz = 0 (y out
+of plane), one 3D RVE per in-plane Gauss point, whose axial direction is z as in the triaxial
+test. Forces are per metre of thickness.
 
 Boundary conditions:
 
-* bottom platen (y = 0): u_y = 0; smooth, so u_x is free except at the node at the origin
+* bottom platen (z = 0): u_z = 0; smooth, so u_x is free except at the node at the origin
   (u_x = 0: no rigid-body motion);
-* top platen (y = H): u_y = −axial_strain · H from the load path (smooth: u_x free);
+* top platen (z = H): u_z = −axial_strain · H from the load path (smooth: u_x free);
 * lateral faces (x = 0, x = W): the confining pressure p0 as a traction −p0·n;
 * the material points start from the consolidated stress −p0·1, in equilibrium with the
   confinement at zero displacement (step 0 records that state).
 
 No symmetry reduction: a band breaks the specimen's symmetry, so the full specimen is meshed.
 
-Localisation trigger (``weak_zone``): the Gauss points inside a circle (centre, radius in m)
+Localisation trigger (``weak_zone``): the Gauss points inside a circle (centre [x, z], radius in m)
 belong to zone 1, the others to zone 0 (:meth:`zones`); the driver gives zone 1 a weaker
 material (DEM: the packing restored to a lower interparticle friction; the analytic model: a
 lower friction). A weak zone that holds no Gauss point is an error naming the key.
@@ -56,10 +57,10 @@ def plane_element(section: str, element: str) -> str:
 
 
 def plane_pair(section: str, key: str, value, integer: bool = False) -> tuple:
-    """Two positive numbers [x, y] of a plane-strain setting, or ProblemConfigError naming the key."""
+    """Two positive numbers [x, z] of a plane-strain setting, or ProblemConfigError naming the key."""
     values = list(value) if isinstance(value, (list, tuple)) else [value]
     if len(values) != 2:
-        raise ProblemConfigError(f"config key '{section}.{key}': plane strain takes two values [x, y], got "
+        raise ProblemConfigError(f"config key '{section}.{key}': plane strain takes two values [x, z], got "
                                  f"{values} (three values are a 3D specimen's: section 'specimen')")
     cast = int if integer else float
     out = tuple(cast(v) for v in values)
@@ -88,8 +89,8 @@ class BiaxialProblem(BoundaryValueProblem):
     #: the largest axial strain a load path may reach
     MAX_AXIAL_STRAIN = 0.5
     OBSERVABLES = {
-        "axial_strain": ("1", "prescribed axial strain, compression positive (top uy = -axial_strain * H)"),
-        "top_force": ("N/m", "platen reaction per metre of thickness, tension positive (= integral of sigma_yy "
+        "axial_strain": ("1", "prescribed axial strain, compression positive (top uz = -axial_strain * H)"),
+        "top_force": ("N/m", "platen reaction per metre of thickness, tension positive (= integral of sigma_zz "
                              "over the top face)"),
         "lateral_strain": ("1", "mean horizontal strain (u_x(W) - u_x(0)) / W over the height, tension positive"),
     }
@@ -107,7 +108,7 @@ class BiaxialProblem(BoundaryValueProblem):
         mesh = rectangle_mesh(np.linspace(0.0, W, self.elements[0] + 1), np.linspace(0.0, H, self.elements[1] + 1))
         ops = GaussPointOperators(mesh, self.element)
         self.ops = ops
-        x = ops.node_positions
+        x = ops.mesh_node_positions  # the mesh's (x, y) are the body's (x, z)
         scale = max(W, H)
         self.faces = {
             "bottom": nodes_where(x, 1, 0.0, scale), "top": nodes_where(x, 1, H, scale),
@@ -141,20 +142,20 @@ class BiaxialProblem(BoundaryValueProblem):
         centre = np.asarray(zone.get("center", ()), dtype=float)
         radius = float(zone.get("radius", 0.0))
         if centre.shape != (2,) or not radius > 0:
-            raise ProblemConfigError(f"{key}: needs center [x, y] (m) and a radius > 0 (m), got {zone}")
+            raise ProblemConfigError(f"{key}: needs center [x, z] (m) and a radius > 0 (m), got {zone}")
         W, H = self.size
         if not (0 <= centre[0] <= W and 0 <= centre[1] <= H):
             raise ProblemConfigError(f"{key}: center {centre.tolist()} lies outside the specimen [0, {W:g}] x "
                                      f"[0, {H:g}] m")
         inside = self._inside(centre, radius)
         if not inside.any():
-            d = np.linalg.norm(self._gp_positions[:, :2] - centre, axis=1).min()
+            d = np.linalg.norm(self._gp_positions[:, [0, 2]] - centre, axis=1).min()
             raise ProblemConfigError(f"{key}: no Gauss point lies within {radius:g} m of {centre.tolist()} (the "
                                      f"nearest is {d:.3g} m away); enlarge the radius")
         return {"center": centre.tolist(), "radius": radius, "gauss_points": int(inside.sum())}
 
     def _inside(self, centre: np.ndarray, radius: float) -> np.ndarray:
-        return np.linalg.norm(self._gp_positions[:, :2] - centre, axis=1) <= radius
+        return np.linalg.norm(self._gp_positions[:, [0, 2]] - centre, axis=1) <= radius
 
     def zones(self) -> np.ndarray:
         """[n_material_points] material zone of each point: 1 inside the weak zone, 0 elsewhere."""

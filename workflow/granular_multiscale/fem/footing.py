@@ -4,8 +4,8 @@ footing's centre).
 
     problem = FootingProblem.from_config(config)     # config section ``footing``
 
-Geometry. x horizontal, y vertical with the free surface at y = 0 and the layer down to
-y = −depth. ``symmetry: half`` meshes x in [0, half_width] (x = 0 the symmetry plane through
+Geometry. The x–z plane (y out of plane, plane strain as in ``biaxial.py``): x horizontal, z
+vertical with the free surface at z = 0 and the layer down to z = −depth. ``symmetry: half`` meshes x in [0, half_width] (x = 0 the symmetry plane through
 the footing's centre, the footing on 0 ≤ x ≤ B/2); ``symmetry: none`` meshes the whole domain
 x in [−half_width, half_width]. The mesh is graded: ``footing_elements`` equal elements under
 the half footing, then sizes growing geometrically to the far side and downwards
@@ -13,12 +13,12 @@ the half footing, then sizes growing geometrically to the far side and downwards
 
 Boundary conditions:
 
-* footing nodes (surface, |x| ≤ B/2): u_y = −(s/B) · B from the load path (s/B: the settlement
+* footing nodes (surface, |x| ≤ B/2): u_z = −(s/B) · B from the load path (s/B: the settlement
   over the footing width), u_x = 0 (rough);
 * free surface outside the footing: the surcharge q0 = p0 (``specimen.confining_pressure``),
   so the initial state −p0·1 of the consolidated RVEs is in equilibrium everywhere at zero
   displacement;
-* bottom (y = −depth): fixed; far side(s): rollers (u_x = 0); symmetry plane: u_x = 0.
+* bottom (z = −depth): fixed; far side(s): rollers (u_x = 0); symmetry plane: u_x = 0.
 
 Recorded per step, beyond every problem's variables: ``settlement_ratio`` (s/B) and
 ``footing_pressure`` (mean contact pressure of the whole footing, compression positive: the
@@ -87,7 +87,7 @@ class FootingProblem(BoundaryValueProblem):
         mesh = rectangle_mesh(x_nodes, y_nodes)
         ops = GaussPointOperators(mesh, self.element)
         self.ops = ops
-        x = ops.node_positions
+        x = ops.mesh_node_positions  # the mesh's (x, y) are the body's (x, z)
         scale = max(half, depth)
         tol = 1e-9 * scale
         surface = nodes_where(x, 1, 0.0, scale)

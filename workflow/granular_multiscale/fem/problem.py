@@ -157,7 +157,7 @@ class BoundaryValueProblem:
         return -self.confining_pressure * np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
 
     def _node_at(self, x) -> np.ndarray:
-        d = np.linalg.norm(self.ops.node_positions[:, : self.ops.dim] - np.asarray(x, dtype=float), axis=1)
+        d = np.linalg.norm(self.ops.mesh_node_positions - np.asarray(x, dtype=float), axis=1)
         return np.array([int(np.argmin(d))])
 
     # -- load control and what is measured -----------------------------------------------------
