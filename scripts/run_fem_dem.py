@@ -28,4 +28,4 @@ if __name__ == "__main__" or "snakemake" in globals():
     main(dict(snakemake.config), p.get("path_name", None) or snakemake.wildcards.path, list(i.packings),  # noqa: F821
          snakemake.output[0], p.checkpoint, snakemake.log[0], snakemake.threads,  # noqa: F821
          p.get("n_spheres", None), p.get("dem_newton", None), p.get("problem", "triaxial"),
-         i.get("weak_packing", None), p.get("overrides", None))
+         (list(i.get("weak_packing", None) or []) or [None])[0], p.get("overrides", None))
