@@ -14,6 +14,7 @@ at its centre and edge midpoints), so a band one element wide stays visible.
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -142,7 +143,7 @@ def field_figure(run: xr.Dataset, quantities: Sequence[str], steps: Sequence[int
             ax.set_xticks([])
             ax.set_yticks([])
             if row == 0:
-                ax.set_title(f"{label} ({unit})", fontsize=9)
+                ax.set_title(textwrap.fill(f"{label} ({unit})", 24), fontsize=8)
             if col == 0:
                 ax.set_ylabel(f"step {step}: {xlabel.split(' (')[0]} {x[step]:.2f} %", fontsize=8)
             if row == len(steps) - 1:
