@@ -137,7 +137,7 @@ def test_biaxial_localises_in_a_band_from_the_weak_zone(tmp_path):
 
 def test_quadratic_elements_do_not_lock_where_bilinear_ones_do(tmp_path):
     """The same softening biaxial test, 6 × 12 elements, a weak zone of 8 mm radius: quad8 (2 × 2
-    points) localises into one band (ratio 6.35 measured, at 46°), fully integrated quad4 locks
+    points) localises into one band (ratio 6.35 measured, at 44.5°), fully integrated quad4 locks
     under the band's isochoric flow (2.14, the strain spread over the bottom, at 5.5°)."""
     ratios = {}
     zone = {"center": [0.0125, 0.04], "radius": 0.008}
@@ -277,7 +277,7 @@ def test_the_weak_zone_gets_the_weak_packing():
 
 # ------------------------------------------------------------------------ real YADE
 BIAXIAL_DEM = {"elements": [2, 4], "weak_zone": {"center": [0.0125, 0.04], "radius": 0.01},
-               "load_paths": {"p": {"segments": [[4, 0.02], [2, 0.01], [10, 0.1]]}}}
+               "load_paths": {"p": {"segments": [[14, 0.07]]}}}
 
 
 def dem_biaxial_config(tmp_path: Path) -> dict:
@@ -288,16 +288,26 @@ def dem_biaxial_config(tmp_path: Path) -> dict:
 
 @pytest.mark.slow
 def test_biaxial_with_yade_rves_forms_a_band(tmp_path_factory, tmp_path):
-    """32 RVEs of 100 spheres, two of them weak (μ 0.2): past the peak a band carries at least twice
-    the specimen's mean shear strain."""
+    """32 RVEs of 100 spheres, two of them weak (frictionless): past the peak a band carries at
+    least twice the specimen's mean shear strain.
+
+    Why these settings: a 100-sphere cell is a few of its largest grains wide. Inside a band at
+    9 % of the specimen's axial strain its side falls below two grain diameters (YADE stops:
+    "Body larger than half of the cell size"), and its stress scatters from one trial to the next
+    by a few per cent, so Newton at the default 2e-2 needs 20+ iterations a step past the peak.
+    The frictionless weak zone localises earlier (ratio 2.3 at 7 %, onset near 6 %; with μ 0.2 the
+    ratio is 1.2 at 7 %), and 5e-2 matches the small RVE's scatter: 3 minutes, not 15."""
     strong, _ = packing(tmp_path_factory)
-    weak, _ = packing(tmp_path_factory, friction=0.2)
+    weak, _ = packing(tmp_path_factory, friction=0.0)
     from granular_multiscale.drivers.fem_dem import run_fem_dem
 
-    ds = run_fem_dem(dem_biaxial_config(tmp_path), "p", [str(strong)], tmp_path / "b.h5", None, 2,
+    config = dem_biaxial_config(tmp_path)
+    config["biaxial"].setdefault("dem_newton", {})["tolerance"] = 0.05
+    ds = run_fem_dem(config, "p", [str(strong)], tmp_path / "b.h5", None, 2,
                      problem="biaxial", weak_packing=str(weak))
     m = band_metrics(ds)
     assert m["band_ratio"] >= 2.0, m
+    assert 0.04 < m["onset_load"] < 0.07, m  # axial strain: past the peak, before the end
     assert ds.load_force.values[-1] < ds.load_force.max()  # softened past the peak
     assert ds.attrs["method"] == "dem" and ds.attrs["problem"] == "biaxial"
 

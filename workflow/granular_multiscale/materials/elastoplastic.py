@@ -116,8 +116,8 @@ REVERSE_YIELDING = {
 #: localisation tests without DEM): the DEFAULTS' E with ν = 0.2, hardening to a peak and
 #: softening slowly to the residual k∞ − k_s = 100 kPa, no kinematic hardening (it would grow
 #: without bound against the softening), dilatancy β0 = 0.4 < η decaying with κd = 0.03.
-#: Plane-strain compression under σ_xx = −100 kPa (ε_zz = 0, 0.05 % steps): peak deviator
-#: σ_xx − σ_yy = 344 kPa at 3.45 % axial strain (the default 400-sphere RVE: 374 kPa at 4 %),
+#: Plane-strain compression under σ_xx = −100 kPa (ε_yy = 0, axial z, 0.05 % steps): peak deviator
+#: σ_zz − σ_xx = 344 kPa at 3.45 % axial strain (the default 400-sphere RVE: 415 kPa at 4.5 %),
 #: 266 kPa (0.77 × peak) at 10 %; volumetric strain −1.37 % at the peak (elastic compaction),
 #: −0.39 % at 10 %, its rate over 8–10 % is 13 % of its largest; κ = 0.10 at 10 %. A faster
 #: softening (k_s = 150 kPa over κs = 0.02) snaps back on coarse meshes: Newton then finds no
