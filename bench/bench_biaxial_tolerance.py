@@ -1,13 +1,13 @@
 """The biaxial FEM–DEM reference's own error: the same run at the default Newton tolerance of the
-plane-strain problems (biaxial.dem_newton.tolerance, 0.02) and at tighter ones, side by side.
+plane-strain problems (biaxial.dem_newton.tolerance: 0.02 at the default scale, 0.05 at the tiny
+one) and at tighter ones, side by side.
 
     .venv/bin/python bench/bench_biaxial_tolerance.py                    # tiny: 2 x 4 mesh, 100 spheres
     .venv/bin/python bench/bench_biaxial_tolerance.py --tolerances 0.02 0.01 --out ...
 
-Each run uses the configured weak zone (the tiny scale: config/tiny.yaml's biaxial section with
-RVEs of --spheres spheres). The default path and weak friction are those of the YADE band test
-(tests/test_problems.py): a 100-sphere cell cannot follow a band to 10 % (its side falls below two
-grain diameters), so the path ends at 7 % and the frictionless weak zone localises before that.
+Each run uses the configured biaxial section (the tiny scale: config/tiny.yaml's, 2 x 4 quad8, a
+frictionless weak zone, to 7 %, as the YADE band test of tests/test_problems.py) with RVEs of
+--spheres spheres.
 Printed and written (JSON, --out, after every run) per tolerance, loosest first: the largest
 platen-force difference to the tightest finished run over the path (in % of its peak), before and
 after that peak, the band metrics and their differences, Newton iterations, cutbacks, DEM
@@ -67,9 +67,6 @@ def main(argv=None) -> None:
     parser.add_argument("--config", type=Path, default=CONFIG_DIR / "tiny.yaml")
     parser.add_argument("--spheres", type=int, default=100)
     parser.add_argument("--tolerances", type=float, nargs="+", default=[0.05, 0.02, 0.01])
-    parser.add_argument("--segments", type=json.loads, default=[[14, 0.07]],
-                        help="the load path's segments, JSON (default: the YADE band test's)")
-    parser.add_argument("--weak-friction", type=float, default=0.0)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "biaxial_tolerance.json")
     args = parser.parse_args(argv)
@@ -77,8 +74,7 @@ def main(argv=None) -> None:
     work = args.out.parent / "biaxial_tolerance_runs"
     work.mkdir(parents=True, exist_ok=True)
     config = load_config(args.config, overrides={"dem.n_spheres": args.spheres})
-    config["biaxial"]["weak_zone"]["dem_friction"] = args.weak_friction
-    config["biaxial"]["load_paths"] = {"bench": {"segments": args.segments}}
+    path = list(config["biaxial"]["load_paths"])[0]
     packings = {}
     for name, friction in (("strong", config["dem"]["friction"]), ("weak", config["biaxial"]["weak_zone"]["dem_friction"])):
         packings[name] = work / f"packing_{args.spheres}_{name}.yade.gz"
@@ -91,7 +87,7 @@ def main(argv=None) -> None:
         config["biaxial"]["dem_newton"]["tolerance"] = tol
         t0 = time.perf_counter()
         try:
-            runs[tol] = run_fem_dem(config, "bench", [str(packings["strong"])], work / f"tol_{tol:g}.h5", None,
+            runs[tol] = run_fem_dem(config, path, [str(packings["strong"])], work / f"tol_{tol:g}.h5", None,
                                     args.workers, problem="biaxial", weak_packing=str(packings["weak"]))
             runs[tol].attrs["wall_s"] = time.perf_counter() - t0
         except ConvergenceError as error:
