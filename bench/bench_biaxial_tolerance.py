@@ -92,7 +92,7 @@ def main(argv=None) -> None:
             runs[tol].attrs["wall_s"] = time.perf_counter() - t0
         except ConvergenceError as error:
             failed.append({"tolerance": tol, "wall_s": time.perf_counter() - t0, "error": str(error)[:500]})
-        rows = compare(runs) + failed
+        rows = (compare(runs) if runs else []) + failed
         print(pd.DataFrame(rows).drop(columns="error", errors="ignore").to_string(index=False, float_format=lambda v: f"{v:.4g}"))
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
         payload = {"bench": "biaxial_tolerance", "commit": commit, "date": time.strftime("%Y-%m-%d %H:%M"),
