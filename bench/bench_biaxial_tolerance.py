@@ -3,7 +3,8 @@ plane-strain problems (biaxial.dem_newton.tolerance: 0.02 at the default scale, 
 one) and at tighter ones, side by side.
 
     .venv/bin/python bench/bench_biaxial_tolerance.py                    # tiny: 2 x 4 mesh, 100 spheres
-    .venv/bin/python bench/bench_biaxial_tolerance.py --tolerances 0.02 0.01 --out ...
+    .venv/bin/python bench/bench_biaxial_tolerance.py --tolerances 0.02 0.01 --segments '[[9, 0.045]]' \
+        --out results/bench/biaxial_tolerance_prepeak.json
 
 Each run uses the configured biaxial section (the tiny scale: config/tiny.yaml's, 2 x 4 quad8, a
 frictionless weak zone, to 7 %, as the YADE band test of tests/test_problems.py) with RVEs of
@@ -67,6 +68,8 @@ def main(argv=None) -> None:
     parser.add_argument("--config", type=Path, default=CONFIG_DIR / "tiny.yaml")
     parser.add_argument("--spheres", type=int, default=100)
     parser.add_argument("--tolerances", type=float, nargs="+", default=[0.05, 0.02, 0.01])
+    parser.add_argument("--segments", type=json.loads, default=None,
+                        help="replace the path's segments, JSON: '[[9, 0.045]]' stops before the tiny peak")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "biaxial_tolerance.json")
     args = parser.parse_args(argv)
@@ -75,6 +78,8 @@ def main(argv=None) -> None:
     work.mkdir(parents=True, exist_ok=True)
     config = load_config(args.config, overrides={"dem.n_spheres": args.spheres})
     path = list(config["biaxial"]["load_paths"])[0]
+    if args.segments is not None:
+        config["biaxial"]["load_paths"][path]["segments"] = args.segments
     packings = {}
     for name, friction in (("strong", config["dem"]["friction"]), ("weak", config["biaxial"]["weak_zone"]["dem_friction"])):
         packings[name] = work / f"packing_{args.spheres}_{name}.yade.gz"
