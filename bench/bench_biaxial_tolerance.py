@@ -20,8 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import platform
-import subprocess
 import time
 from pathlib import Path
 
@@ -29,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from granular_multiscale.analysis.bands import band_metrics
-from granular_multiscale.analysis.tables import machine_description
+from granular_multiscale.analysis.tables import bench_record
 from granular_multiscale.config import CONFIG_DIR, load_config
 from granular_multiscale.dem.rve import RVESpec, prepare_packing
 from granular_multiscale.drivers.fem_dem import run_fem_dem
@@ -99,11 +97,8 @@ def main(argv=None) -> None:
             failed.append({"tolerance": tol, "wall_s": time.perf_counter() - t0, "error": str(error)[:500]})
         rows = (compare(runs) if runs else []) + failed
         print(pd.DataFrame(rows).drop(columns="error", errors="ignore").to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-        payload = {"bench": "biaxial_tolerance", "commit": commit, "date": time.strftime("%Y-%m-%d %H:%M"),
-                   "machine": {**machine_description(), "python": platform.python_version()},
-                   "settings": {"config": str(args.config), "spheres": args.spheres, "biaxial": config["biaxial"]},
-                   "rows": rows}
+        payload = bench_record("biaxial_tolerance", {"config": str(args.config), "spheres": args.spheres,
+                                                     "biaxial": config["biaxial"]}, rows, ROOT)
         args.out.write_text(json.dumps(payload, indent=1, default=float))
     print(f"wrote {args.out}")
 

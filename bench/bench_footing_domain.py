@@ -16,14 +16,12 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import platform
-import subprocess
 import time
 from pathlib import Path
 
 import pandas as pd
 
-from granular_multiscale.analysis.tables import machine_description
+from granular_multiscale.analysis.tables import bench_record
 from granular_multiscale.config import load_config
 from granular_multiscale.drivers.reference import run_fem_reference
 from granular_multiscale.materials.elastoplastic import SOFTENING
@@ -65,10 +63,7 @@ def main(argv=None) -> None:
             row["pressure_10pct_over_default"] = row["pressure_10pct_kPa"] / block[0]["pressure_10pct_kPa"]
         rows += block
     print(pd.DataFrame(rows).to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    payload = {"bench": "footing_domain", "commit": commit, "date": time.strftime("%Y-%m-%d %H:%M"),
-               "machine": {**machine_description(), "python": platform.python_version()},
-               "settings": {"softening": SOFTENING, "path": PATH}, "rows": rows}
+    payload = bench_record("footing_domain", {"softening": SOFTENING, "path": PATH}, rows, ROOT)
     args.out.write_text(json.dumps(payload, indent=1))
     print(f"wrote {args.out}")
 

@@ -16,8 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import platform
-import subprocess
 import time
 from pathlib import Path
 
@@ -25,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from granular_multiscale.analysis.bands import band_metrics
-from granular_multiscale.analysis.tables import machine_description
+from granular_multiscale.analysis.tables import bench_record
 from granular_multiscale.config import load_config
 from granular_multiscale.drivers.reference import run_fem_reference
 from granular_multiscale.materials.elastoplastic import SOFTENING
@@ -68,10 +66,7 @@ def main(argv=None) -> None:
     rows = [run(element, mesh, runs_dir) for element in ELEMENTS for mesh in MESHES]
     table = pd.DataFrame(rows)
     print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    payload = {"bench": "plane_elements", "commit": commit, "date": time.strftime("%Y-%m-%d %H:%M"),
-               "machine": {**machine_description(), "python": platform.python_version()},
-               "settings": {"material": SOFTENING, "weak_zone": WEAK_ZONE}, "rows": rows}
+    payload = bench_record("plane_elements", {"material": SOFTENING, "weak_zone": WEAK_ZONE}, rows, ROOT)
     args.out.write_text(json.dumps(payload, indent=1))
     print(f"wrote {args.out}")
 
