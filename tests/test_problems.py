@@ -291,7 +291,7 @@ def test_biaxial_with_yade_rves_forms_a_band(tmp_path_factory, tmp_path):
     "Body larger than half of the cell size"), and its stress scatters from one trial to the next
     by a few per cent, so Newton at the default 2e-2 needs 20+ iterations a step past the peak.
     The frictionless weak zone localises earlier (measured: ratio 2.3 at 7 %, onset near 6 %; with
-    μ 0.2 the ratio is 1.2 at 7 %), and 5e-2 matches the small RVE's scatter: 3 minutes, not 15."""
+    μ 0.2 the ratio is 1.2 at 7 %), and 5e-2 matches the small RVE's scatter: 90 s, not 15 minutes."""
     strong, _ = packing(tmp_path_factory)
     weak, _ = packing(tmp_path_factory, friction=0.0)
     from granular_multiscale.drivers.fem_dem import run_fem_dem
