@@ -82,6 +82,9 @@ def test_truncated_file_names_the_file(run, tmp_path):
     path = write_run(ds, tmp_path / "cut.h5", config)
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(DataFileError, match=r"run file .*cut\.h5 is corrupt: its sha256 .* differs from"):
+        read_run(path)
+    (tmp_path / "cut.h5.sha256").unlink()  # without its checksum: HDF5's own error, with the name
     with pytest.raises(DataFileError, match=r"cut\.h5 is not a readable"):
         read_run(path)
 

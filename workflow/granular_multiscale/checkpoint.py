@@ -15,6 +15,7 @@ import pickle
 import shutil
 from pathlib import Path
 
+from . import integrity
 from .atomic import atomic_path
 
 
@@ -24,12 +25,15 @@ def save(path: Path, payload: dict) -> None:
         pickle.dump(payload, f, protocol=pickle.HIGHEST_PROTOCOL)
 
 
-def load(path: Path) -> dict | None:
+def load(path: Path) -> dict:
+    """The pickled payload; :class:`integrity.CorruptFileError` if the file does not match its
+    checksum or cannot be unpickled."""
+    integrity.verify(path, "checkpoint")
     try:
         with open(path, "rb") as f:
             return pickle.load(f)
-    except Exception:
-        return None
+    except Exception as error:  # a checkpoint written before checksums existed, truncated
+        raise integrity.CorruptFileError(f"checkpoint {path} cannot be read: {error}") from error
 
 
 def resume(path: Path | None, signature, material, logger: logging.Logger) -> dict | None:
@@ -38,18 +42,21 @@ def resume(path: Path | None, signature, material, logger: logging.Logger) -> di
     is removed with one warning saying why."""
     if path is None or not path.exists():
         return None
-    saved = load(path)
     reason = None
-    if saved is None or saved.get("signature") != signature:
-        reason = "it belongs to another run (or is unreadable)"
-    else:
+    try:
+        saved = load(path)
+    except integrity.CorruptFileError as error:
+        saved, reason = None, str(error)
+    if saved is not None and (not isinstance(saved, dict) or saved.get("signature") != signature):
+        reason = "it belongs to another run"
+    elif saved is not None:
         try:
             material.set_state(saved["material_state"])
-        except (ValueError, FileNotFoundError) as error:  # the set refuses a state it cannot continue
-            reason = f"the material set cannot resume it ({error})"
+        except (ValueError, OSError) as error:  # the set refuses a state it cannot continue (a snapshot
+            reason = f"the material set cannot resume it ({error})"  # missing or corrupt: OSError)
     if reason is None:
         return saved
-    path.unlink(missing_ok=True)
+    integrity.forget(path)
     logger.warning("checkpoint %s set aside: %s; starting afresh", path, reason)
     return None
 

@@ -68,6 +68,7 @@ import numpy as np
 import xarray as xr
 import yaml
 
+from . import integrity
 from .atomic import atomic_path
 from .tensors import SYMMETRY_RTOL, TCOMP36, symmetric_part, tangent_asymmetry, tangent_from_full, \
     tangent_from_upper, tangent_to_full, tangent_to_upper
@@ -128,6 +129,10 @@ def read_run(path: str | Path, required=REQUIRED_VARIABLES) -> xr.Dataset:
     path = Path(path)
     if not path.is_file():
         raise DataFileError(f"run file {path} does not exist")
+    try:
+        integrity.verify(path, "run file")
+    except integrity.CorruptFileError as error:
+        raise DataFileError(str(error)) from None
     try:
         with xr.open_dataset(path, engine=ENGINE) as ds:
             ds = ds.load()

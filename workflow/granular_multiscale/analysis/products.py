@@ -16,7 +16,7 @@ import pandas as pd
 import xarray as xr
 
 from ..atomic import atomic_path
-from .. import data
+from .. import data, integrity
 from . import metrics, selection, tables
 
 # figures (matplotlib) and fields (pyvista/VTK) are imported where they are used: the table
@@ -54,6 +54,7 @@ def gauss_point_split(train_file: str | Path, heldout_file: str | Path) -> tuple
     empty when only RVE paths trained: then every point of a validation run is unseen."""
     ids = []
     for path, key in ((train_file, "train_gp"), (heldout_file, "heldout_gp")):
+        integrity.verify(path, "dataset file")
         with xr.open_dataset(path, engine=data.ENGINE) as ds:
             if key in ds.attrs:
                 ids.append(np.atleast_1d(np.asarray(ds.attrs[key], dtype=int)))
@@ -566,6 +567,7 @@ def read_headline(path, tolerance_study=None) -> dict | None:
     path = Path(path)
     if not path.is_file():
         return None
+    integrity.verify(path, "headline file")
     try:
         headline = json.loads(path.read_text())
     except ValueError as error:

@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
+from .. import integrity
 from ..atomic import atomic_path
 from ..paths import LoadPath
 from . import metrics
@@ -258,6 +259,7 @@ def rve_preparation_seconds(summary_file: str | Path) -> float:
     packings: exact for one packing, an upper bound when several ran side by side)."""
     import json
 
+    integrity.verify(summary_file, "RVE summary")
     try:
         summary = json.loads(Path(summary_file).read_text())
         times = [float(p["wall_time"]) for p in summary["packings"]]

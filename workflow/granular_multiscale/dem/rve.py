@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import integrity
+
 
 @dataclass
 class RVESpec:
@@ -319,6 +321,7 @@ def main(argv: list[str]) -> int:
     packing_path = Path(packing_path)
     tmp = packing_path.with_name(packing_path.name + ".tmp" + "".join(packing_path.suffixes))
     O.save(str(tmp))
+    integrity.record(packing_path, content=tmp)
     os.replace(tmp, packing_path)
     summary["packing"] = str(packing_path)
     Path(summary_path).write_text(json.dumps(summary, indent=1))

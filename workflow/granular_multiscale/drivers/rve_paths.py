@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from .. import checkpoint as checkpoints
+from .. import checkpoint as checkpoints, integrity
 from ..data import RVE_PATHS_VARIABLES, write_run
 from ..dem.material import DemMaterialPointSet
 from ..dem.strain_paths import (STRESS_CONTROLLED, StrainPaths, lateral_servo, set_definition, set_section,
@@ -149,7 +149,7 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
                 int((lost >= 0).sum()), n_traj)
     write_run(ds, output, config, required=RVE_PATHS_VARIABLES)
     if checkpoint is not None:
-        checkpoint.unlink(missing_ok=True)
+        integrity.forget(checkpoint)
     if scenes_dir is not None and scenes_dir.exists():
         shutil.rmtree(scenes_dir)
     logger.info("wrote %s", output)

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from .. import checkpoint as checkpoints
+from .. import checkpoint as checkpoints, integrity
 from ..materials.wrappers import TangentRepair, UniformField
 from ..paths import LoadPath
 from .assembly import GaussPointOperators
@@ -325,5 +325,5 @@ class BoundaryValueProblem:
         ds = recorder.dataset(self, load_path, method, material_points)
         ds.attrs.update(cost_split(timers, elapsed(), resume_time))
         if checkpoint is not None:
-            checkpoint.unlink(missing_ok=True)
+            integrity.forget(checkpoint)
         return ds

@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from .. import integrity
 from ..atomic import atomic_path
 from ..history import HIST, PHI, history_from_sequence
 from ..tensors import COMP, TCOMP
@@ -369,6 +370,10 @@ def read_dataset(path: str | Path) -> xr.Dataset:
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"dataset file not found: {path}")
+    try:
+        integrity.verify(path, "dataset file")
+    except integrity.CorruptFileError as error:
+        raise DatasetError(str(error)) from None
     try:
         with xr.open_dataset(path, engine="h5netcdf") as ds:
             ds = ds.load()

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from .. import integrity
 from ..atomic import atomic_path
 from ..history import HIST, trial_history_torch
 from .dataset import STRAIN_FEATURES, feature_names, history_selection, target_names
@@ -341,6 +342,10 @@ class SurrogateModel:
         path = Path(path)
         if not path.exists():
             raise ModelFileError(f"model file not found: {path}")
+        try:  # torch.load does not check the archive's CRC: a flipped byte reads back as weights
+            integrity.verify(path, "model file")
+        except integrity.CorruptFileError as error:
+            raise ModelFileError(str(error)) from None
         try:
             payload = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as e:  # torch raises several types for a damaged file
