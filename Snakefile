@@ -5,6 +5,24 @@
 #   snakemake -j2 all --configfile config/tiny.yaml     tests/CI scale
 #   snakemake --report results/report.html              the HTML report of a finished run
 
+import sys
+from pathlib import Path
+
+from granular_multiscale.config import ConfigError, read_config_file
+
+# Snakemake's message for a broken config file names neither the file nor the line; read the
+# default config first for one that does. (Files given with --configfile are read by Snakemake's
+# command line before this file runs: a broken one gets Snakemake's message, a missing one its
+# traceback; --verbose shows YAML's line there.) Like the configfile directive below, relative to
+# the working directory; a working directory without it leaves the choice to Snakemake (it runs
+# with the --configfile files alone).
+try:
+    if Path("config/config.yaml").exists():
+        read_config_file("config/config.yaml")
+except ConfigError as error:
+    sys.exit(f"Configuration error: {error}")
+
+
 configfile: "config/config.yaml"
 
 
@@ -19,6 +37,20 @@ include: "workflow/rules/problems.smk"
 
 
 report: "workflow/report/workflow.rst"
+
+
+onstart:
+    take_output_lock()
+    config.pop("headline", None)  # jobs never see the report's front-page numbers
+
+
+onsuccess:
+    show_headline()  # the numbers this run has just written, for --report-after-run
+    output_lock.release(OUT)
+
+
+onerror:
+    output_lock.release(OUT)
 
 
 rule all:

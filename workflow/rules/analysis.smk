@@ -428,7 +428,7 @@ ALL_TARGETS += [f"{OUT}/figures/calibration.png", f"{OUT}/tables/calibration.csv
 #   * again after a successful run (onsuccess), so that `--report-after-run` states the numbers
 #     this run has just written, not those of an earlier run (or none, on a fresh run).
 # Jobs never depend on it: no rule's params or input holds it (so it never makes a rule rerun),
-# onstart takes it out of the config before the first job, and validate_config drops it (a job
+# onstart (Snakefile) takes it out of the config before the first job, and validate_config drops it (a job
 # that reloads the workflow, on a cluster or with --nohooks, validates its config).
 HEADLINE_FILE = f"{OUT}/tables/headline.json"
 
@@ -438,7 +438,7 @@ def show_headline():
 
     try:  # with the reference's own error when the tolerance study has run
         headline = read_headline(HEADLINE_FILE, tolerance_study=f"{OUT}/tables/tolerance_study.csv")
-    except ValueError as error:  # a damaged file must not stop the workflow that rebuilds it
+    except (ValueError, OSError) as error:  # a damaged file must not stop the workflow that rebuilds it
         from snakemake.logging import logger
 
         logger.warning(f"{error}: the report's front page will lack the headline numbers")
@@ -451,10 +451,3 @@ def show_headline():
 
 show_headline()
 
-
-onstart:
-    config.pop("headline", None)
-
-
-onsuccess:
-    show_headline()
