@@ -227,7 +227,7 @@ def _config(**sections) -> dict:
     ({"footing": {"width": 1.2}}, "'footing.width'"),
     ({"footing": {"symmetry": "quarter"}}, "'footing.symmetry'"),
     ({"biaxial": {"load_paths": {"pull": {"segments": [[5, -0.01]]}}}}, "'biaxial.load_paths.pull.segments'"),
-    ({"footing": {"load_paths": {"deep": {"segments": [[5, 1.5]]}}}}, "'footing.load_paths.deep.segments'"),
+    ({"footing": {"load_paths": {"deep": {"segments": [[5, 1.5]]}}}}, "'footing.load_paths.deep.segments[0][1]'"),
     ({"biaxial": {"elements": [3, 3, 6]}}, "'biaxial.elements'"),
     ({"biaxial": {"element": "hex8"}}, "'biaxial.element'"),
     ({"footing": {"domain": [0.5, 0.3, 0.2]}}, "'footing.domain'"),

@@ -7,6 +7,7 @@ what to edit. Snakemake's ``common.smk`` and the tests both go through :func:`va
 from __future__ import annotations
 
 import copy
+import math
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +15,11 @@ import jsonschema
 import yaml
 
 SCHEMA_PATH = Path(__file__).resolve().parents[1] / "schemas" / "config.schema.yaml"
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
+REPO_ROOT = Path(__file__).resolve().parents[2]
+CONFIG_DIR = REPO_ROOT / "config"
+#: schema keyword of the numbers for which +inf means something (adaptive.thresholds: never
+#: promote); jsonschema ignores keywords it does not know
+ALLOW_INFINITY = "x-allow-infinity"
 
 
 class ConfigError(ValueError):
@@ -31,20 +36,36 @@ def _key(path) -> str:
     return "".join(parts) or "<top level>"
 
 
+def _as_number(text: str, kind: str) -> Any:
+    """A number from its text, YAML's spellings of infinity and nan (.inf, -.Inf, .NaN) included,
+    so that a non-finite value from --config is refused as one, not as a string."""
+    if kind == "integer":
+        return int(text)
+    return float(text.strip().lower().replace(".inf", "inf").replace(".nan", "nan"))
+
+
 def _from_text(value: Any, schema: dict) -> Any:
     """Numbers and booleans that arrive as strings, accepted as what they are: YAML 1.1 reads
     `1e-4` (no dot, no exponent sign) as a string, and Snakemake's --config reads the values
     nested in a mapping (`--config 'surrogate={epochs: 100, anchor_initial_state: false}'`, and
     `.inf`) as strings."""
-    kind = schema.get("type")
-    if isinstance(value, list) and kind == "array" and isinstance(schema.get("items"), dict):
-        return [_from_text(v, schema["items"]) for v in value]
-    if isinstance(value, str) and kind in ("number", "integer"):
-        try:  # YAML's infinity is .inf (adaptive.thresholds)
-            return float(value.replace(".inf", "inf")) if kind == "number" else int(value)
-        except ValueError:
-            return value
-    if isinstance(value, str) and kind == "boolean":
+    kinds = schema.get("type")
+    kinds = set(kinds) if isinstance(kinds, list) else {kinds}
+    items = schema.get("items")
+    if isinstance(value, list) and "array" in kinds:
+        if isinstance(items, dict):
+            return [_from_text(v, items) for v in value]
+        if isinstance(items, list):  # tuple form, e.g. a load path's [steps, target]
+            return [_from_text(v, sub) for v, sub in zip(value, items)] + value[len(items):]
+    if isinstance(value, str) and kinds & {"number", "integer"}:
+        for kind in ("integer", "number"):
+            if kind in kinds:
+                try:
+                    return _as_number(value, kind)
+                except ValueError:
+                    pass
+        return value
+    if isinstance(value, str) and "boolean" in kinds:
         return {"true": True, "false": False}.get(value.strip().lower(), value)
     return value
 
@@ -76,23 +97,84 @@ def load_schema() -> dict:
 REPORT_ONLY_KEYS = ("headline",)
 
 
+def _non_finite(value: Any, schema: dict, path: list, found: list) -> None:
+    """Collect (path, value, +inf allowed) of every nan and ±inf under ``value``, following the
+    schema (properties, additionalProperties, items in either form) only to find the
+    :data:`ALLOW_INFINITY` marks; parts without a schema are walked all the same. Needed because
+    a schema's minimum/maximum let nan through (every comparison with nan is false)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        allow = bool(schema.get(ALLOW_INFINITY))
+        if not (allow and value > 0):
+            found.append((path, value, allow))
+    elif isinstance(value, dict):
+        props, extra = schema.get("properties", {}), schema.get("additionalProperties")
+        for name, v in value.items():
+            _non_finite(v, props.get(name, extra if isinstance(extra, dict) else {}), path + [name], found)
+    elif isinstance(value, (list, tuple)):
+        items = schema.get("items", {})
+        for i, v in enumerate(value):
+            sub = items if isinstance(items, dict) else (items[i] if i < len(items) else {})
+            _non_finite(v, sub, path + [i], found)
+
+
+def _finite_errors(config: dict, schema: dict) -> list[str]:
+    found: list = []
+    _non_finite(config, schema, [], found)
+    lines = []
+    for path, value, allow in found:
+        if allow:
+            lines.append(f"config key '{_key(path)}': {value} is not allowed (a finite number, or .inf)")
+        elif math.isinf(value):
+            lines.append(f"config key '{_key(path)}': {value} is not a finite number (.inf, or a number beyond "
+                         f"1.8e308 such as 1e999)")
+        else:
+            lines.append(f"config key '{_key(path)}': {value} is not a finite number")
+    return lines
+
+
+def _check_output_dir(config: dict) -> None:
+    """output_dir, normalised once (no trailing slash, relative stays relative: rules build
+    f"{OUT}/..." paths); refused where outputs would land on / or among the sources."""
+    raw = config["output_dir"]
+    if not raw.strip():
+        raise ConfigError(f"config key 'output_dir': {raw!r} is empty; name a folder for the outputs, e.g. results")
+    folder = raw.rstrip("/") or "/"
+    resolved = Path(folder).resolve()
+    if resolved == Path(resolved.anchor):
+        raise ConfigError(f"config key 'output_dir': {raw!r} is the filesystem root; name a folder for the outputs")
+    if resolved == REPO_ROOT:
+        raise ConfigError(f"config key 'output_dir': {raw!r} is the repository itself ({REPO_ROOT}); outputs would "
+                          f"mix with the sources, name a subfolder such as results")
+    config["output_dir"] = folder
+
+
+def _refuse(lines: list[str]) -> None:
+    if len(lines) == 1:  # one problem, one line (Snakemake prints it as "Configuration error: ...")
+        raise ConfigError(f"invalid configuration: {lines[0]}")
+    raise ConfigError("invalid configuration:\n  " + "\n  ".join(lines[:10]))
+
+
 def validate_config(config: dict, schema: dict | None = None) -> dict:
     """Fill defaults and validate; returns the completed config (a copy, without the
     :data:`REPORT_ONLY_KEYS`)."""
     schema = schema or load_schema()
     config = {k: copy.deepcopy(v) for k, v in dict(config).items() if k not in REPORT_ONLY_KEYS}
     _fill_defaults(config, schema)
+    non_finite = _finite_errors(config, schema)  # first: the schema's bounds would let nan pass
+    if non_finite:
+        _refuse(non_finite)
     validator = jsonschema.Draft7Validator(schema)
     errors = sorted(validator.iter_errors(config), key=lambda e: list(e.absolute_path))
     if errors:
         lines = []
-        for e in errors[:10]:
+        for e in errors:
             key = _key(e.absolute_path)
             if e.validator == "additionalProperties":
                 lines.append(f"config key '{key}': {e.message} (unknown key; see {SCHEMA_PATH.name})")
             else:
                 lines.append(f"config key '{key}': {e.message}")
-        raise ConfigError("invalid configuration:\n  " + "\n  ".join(lines))
+        _refuse(lines)
+    _check_output_dir(config)
     if not config["tolerance_study"]["path"]:
         config["tolerance_study"]["path"] = config["validation_path"]
     _check_consistency(config, schema)
@@ -150,16 +232,30 @@ def _check_consistency(config: dict, schema: dict) -> None:
                               f"{sorted(study['variants'])}")
 
 
-def load_config(path: str | Path | None = None, overrides: dict | None = None) -> dict:
-    """Read a YAML config (default config/config.yaml), apply overrides, validate."""
-    path = Path(path) if path else CONFIG_DIR / "config.yaml"
+def read_config_file(path: str | Path) -> dict:
+    """The mapping of a YAML config file; a ConfigError of one line naming the file, and for
+    invalid YAML the line and column (Snakemake's own message names neither)."""
     try:
         with open(path) as f:
-            config = yaml.safe_load(f) or {}
+            config = yaml.safe_load(f)
     except FileNotFoundError:
         raise ConfigError(f"config file not found: {path}") from None
     except yaml.YAMLError as e:
-        raise ConfigError(f"config file {path} is not valid YAML: {e}") from None
+        mark = getattr(e, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
+        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+        context, start = getattr(e, "context", None), getattr(e, "context_mark", None)
+        if context and start:  # where the construct that is left unfinished began
+            problem += f" ({context} at line {start.line + 1}, column {start.column + 1})"
+        raise ConfigError(f"config file {path} is not valid YAML{where}: {problem}") from None
+    if config is not None and not isinstance(config, dict):
+        raise ConfigError(f"config file {path}: the top level must be a mapping of keys, not {type(config).__name__}")
+    return config or {}
+
+
+def load_config(path: str | Path | None = None, overrides: dict | None = None) -> dict:
+    """Read a YAML config (default config/config.yaml), apply overrides, validate."""
+    config = read_config_file(Path(path) if path else CONFIG_DIR / "config.yaml")
     for key, value in (overrides or {}).items():
         node = config
         *parents, last = key.split(".")
