@@ -32,6 +32,16 @@ the material calls: fork, transfer, Python, snapshots), ``dem_cpu_time`` (CPU se
 stepping summed over hosts: what the stepping costs on an idle machine), ``particle_steps``,
 ``trials``.
 
+Heartbeat
+---------
+A trial with a large strain increment keeps the RVE hosts busy for minutes. While
+:meth:`DemMaterialPointSet.evaluate` waits for them, it logs a line every ``heartbeat_interval``
+seconds (class attribute, default :data:`HEARTBEAT_INTERVAL` = 30 s; set it on an instance to
+change it, ``math.inf`` for none) with the RVEs stepped out of those to step, the DEM steps run
+out of those planned and the elapsed time, and one more line when the trial is done. The hosts
+publish these counts in shared memory (``executors.py``, ``worker.py``): nothing is asked of
+them, and the numbers they compute are those of a run without heartbeat.
+
 Checkpoints
 -----------
 ``get_state()`` is small: the converged strains/stresses, the committed strain increments since
@@ -55,8 +65,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .. import integrity
 from ..materials.base import MaterialPointError, MaterialPointSet
-from .executors import make_executor
+from .executors import HEARTBEAT_INTERVAL, Progress, format_progress, make_executor
 
 STATE_FORMAT = "dem-material-state-v1"
 SETTINGS_KEYS = ("strain_rate", "min_steps", "max_steps", "damping")
@@ -80,6 +91,8 @@ class DemMaterialPointSet(MaterialPointSet):
     method = "dem"
     #: load a point's scene only when it is first stepped (the hosts keep the packing's string)
     lazy_scenes = False
+    #: seconds between two progress lines of a trial still running (module docstring)
+    heartbeat_interval: float = HEARTBEAT_INTERVAL
 
     def __init__(
         self,
@@ -112,8 +125,11 @@ class DemMaterialPointSet(MaterialPointSet):
                 data = p.read_bytes()
             except FileNotFoundError:
                 raise FileNotFoundError(f"RVE packing {p} not found (run the 'rve' rule first)") from None
+            sha256 = hashlib.sha256(data).hexdigest()
+            if integrity.recorded(p) not in (None, sha256):  # YADE would say only "gzip error"
+                integrity.verify(p, "RVE packing")
             self._packings[i] = {"name": p.name, "data": data}
-            self.packing_sha256.append(hashlib.sha256(data).hexdigest())
+            self.packing_sha256.append(sha256)
         self.assignment = (
             np.zeros(n_points, dtype=int) if assignment is None else np.asarray(assignment, dtype=int)
         )
@@ -245,7 +261,8 @@ class DemMaterialPointSet(MaterialPointSet):
             return t["stress"].copy(), (t["tangent"].copy() if need_tangent else None)
         dstrain = strain - self.conv_strain
         t0 = time.perf_counter()
-        replies = self.executor.call_all(self._slot_messages("trial", {"dstrain": dstrain}))
+        replies = self.executor.call_all(self._slot_messages("trial", {"dstrain": dstrain}),
+                                         heartbeat=self._heartbeat, interval=self.heartbeat_interval)
         wall = time.perf_counter() - t0
         self._account(wall, replies)
         stress = np.empty((self.n_points, 6))
@@ -255,6 +272,10 @@ class DemMaterialPointSet(MaterialPointSet):
         self._check_response(stress, tangent, "DEM RVEs")
         self._trial = {"strain": strain.copy(), "dstrain": dstrain, "stress": stress, "tangent": tangent}
         return stress.copy(), (tangent.copy() if need_tangent else None)
+
+    def _heartbeat(self, progress: Progress) -> None:
+        """Log how far the running trial is (``trials`` counts the trials of this load step so far)."""
+        self.log.info("%s", format_progress(progress, f"DEM trial {int(self._step['trials']) + 1} of this load step"))
 
     def commit(self, strain=None) -> None:
         self._trial_at(strain, None if self._trial is None else self._trial["strain"])
@@ -298,6 +319,8 @@ class DemMaterialPointSet(MaterialPointSet):
             files = [str(self.snapshot_dir / f"commit{self.commits:05d}_slot{j}.pkl") for j in range(len(self.slots))]
         self.executor.call_all([("snapshot", {"path": f}) for f in files])
         if files[0] is not None:
+            for f in files:  # before the checkpoint that refers to them is written
+                integrity.record(f)
             old = self.base
             self.base = {"step": self.commits, "files": files}
             self.replay = []
@@ -305,7 +328,7 @@ class DemMaterialPointSet(MaterialPointSet):
             if old is not None:
                 for f in sorted(self.snapshot_dir.glob("commit*_slot*.pkl")):
                     if int(f.name[6:11]) < old["step"]:
-                        f.unlink(missing_ok=True)
+                        integrity.forget(f)
         wall = time.perf_counter() - t0
         self._step["snapshot_time"] += wall
         self._step["overhead_time"] += wall
@@ -369,6 +392,8 @@ class DemMaterialPointSet(MaterialPointSet):
             missing = [f for f in base["files"] if not Path(f).exists()]
             if missing:
                 raise FileNotFoundError(f"checkpoint snapshot files missing: {missing}")
+            for f in base["files"]:  # a truncated snapshot would fail inside the RVE hosts, unnamed
+                integrity.verify(f, "RVE snapshot")
             msgs = [("load_snapshot", {"gps": idx.tolist(), "files": base["files"], "settings": self.settings}) for idx in self.slots]
             self._adopt(self.executor.call_all(msgs))
         replay = np.asarray(state["replay"]).reshape(-1, self.n_points, 6)

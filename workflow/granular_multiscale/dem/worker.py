@@ -31,11 +31,23 @@ N = clamp(ceil(max|Δεij| / (strain_rate · dt)), min_steps, max_steps); afterw
 
 Snapshots: ``snapshot`` serialises every scene (to a file, or not) and re-loads it; ``reload``
 does the same to some scenes only (the DEM subset's replay, ``subset.py``).
+
+Progress
+--------
+A large increment keeps a host busy for minutes before it answers. So that the driver can say
+how far it is without asking (a message would wait behind the trial), the host publishes its
+progress in a small shared-memory block (``python -m granular_multiscale.dem.worker FD
+PROGRESS_FD``: a file of :data:`PROGRESS_BYTES` the driver created and maps too): the int64
+words :data:`PROGRESS_FIELDS`, written by plain stores while ``impose`` runs (every
+:data:`PROGRESS_CHUNK` DEM steps). The block is shared with every forked trial child, since a
+``MAP_SHARED`` mapping survives ``fork``. The driver zeroes it before each command; the host never
+reads it, so it cannot change what the DEM computes.
 """
 
 from __future__ import annotations
 
 import math
+import mmap
 import os
 import pickle
 import sys
@@ -46,6 +58,20 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 PR_SET_CHILD_SUBREAPER = 36
+
+#: the int64 words of the progress block (module docstring): RVEs stepped so far and to step in
+#: this command, DEM steps run so far and planned (each RVE: its N steps + the one at rest), and
+#: ``planned`` = 1 once ``steps_planned`` is known
+PROGRESS_FIELDS = ("rves_done", "rves_total", "steps_done", "steps_planned", "planned")
+RVES_DONE, RVES_TOTAL, STEPS_DONE, STEPS_PLANNED, PLANNED = range(len(PROGRESS_FIELDS))
+PROGRESS_BYTES = 8 * len(PROGRESS_FIELDS)
+#: DEM steps between two updates of ``steps_done``: a store per 64 steps of ~100 µs costs nothing
+PROGRESS_CHUNK = 64
+
+
+def map_progress(fd: int) -> np.ndarray:
+    """The progress block in the file ``fd`` (shared mapping) as an int64 array of PROGRESS_FIELDS."""
+    return np.frombuffer(mmap.mmap(fd, PROGRESS_BYTES), dtype=np.int64)
 
 
 def steps_for_increment(dstrain: np.ndarray, dt: float, strain_rate: float, min_steps: int, max_steps: int) -> int:
@@ -60,7 +86,7 @@ def steps_for_increment(dstrain: np.ndarray, dt: float, strain_rate: float, min_
 class Host:
     """The YADE side: one scene per Gauss point of this host (lives in holder/trial processes)."""
 
-    def __init__(self):
+    def __init__(self, progress: np.ndarray | None = None):
         from .yade_env import import_yade
 
         self.O = import_yade()
@@ -76,6 +102,8 @@ class Host:
         self.n_spheres: list[int] = []
         # scenes not loaded yet (load_packings with lazy=True): local index -> packing scene string
         self.pending: dict[int, bytes] = {}
+        # where impose() publishes its progress (a private array when nobody reads it)
+        self.progress = np.zeros(len(PROGRESS_FIELDS), dtype=np.int64) if progress is None else progress
 
     # ---- set-up -------------------------------------------------------------------
     def _scene(self, k: int) -> None:
@@ -172,36 +200,53 @@ class Host:
 
     # ---- DEM ----------------------------------------------------------------------
     def impose(self, dstrain: np.ndarray) -> dict:
-        """Impose one strain increment per scene (from its current state); mutates the scenes."""
+        """Impose one strain increment per scene (from its current state); mutates the scenes.
+
+        Publishes its progress in ``self.progress`` (module docstring) as it goes."""
         from .rve import voigt_to_matrix3
 
-        O, cfg = self.O, self.settings
+        O, cfg, progress = self.O, self.settings, self.progress
         dstrain = np.asarray(dstrain, dtype=float).reshape(len(self.gps), 6)
         stress, tangent = self.stress.copy(), self.tangent.copy()
         steps = np.zeros(len(self.gps), dtype=np.int64)
         dem_time = cpu_time = 0.0
         particle_steps = 0
-        for k in range(len(self.gps)):
-            if not dstrain[k].any():  # no DEM step (and a scene loaded on demand stays unloaded)
-                continue
+        # a zero increment: no DEM step (and a scene loaded on demand stays unloaded)
+        stepped = [k for k in range(len(self.gps)) if dstrain[k].any()]
+        progress[RVES_TOTAL] = len(stepped)
+        # The plan first, so that the driver can show "steps done of planned" from the start. N
+        # depends on the scene's dt only, which nothing changes before the scene is stepped below;
+        # a scene loaded on demand is loaded here instead of a few RVEs later, from the same string.
+        for k in stepped:
             self._scene(k)
-            n = steps_for_increment(dstrain[k], O.dt, cfg["strain_rate"], cfg["min_steps"], cfg["max_steps"])
-            steps[k] = n
+            steps[k] = steps_for_increment(dstrain[k], O.dt, cfg["strain_rate"], cfg["min_steps"], cfg["max_steps"])
+        progress[STEPS_PLANNED] = int(steps.sum()) + len(stepped)
+        progress[PLANNED] = 1
+        steps_done = 0
+        for k in stepped:
+            self._scene(k)
+            n = int(steps[k])
             O.cell.velGrad = voigt_to_matrix3(dstrain[k] / (n * O.dt), self.Matrix3)
             t0, c0 = time.perf_counter(), time.process_time()
             step = O.step
-            for _ in range(n):
-                step()
+            # the same n calls of O.step as one loop, in chunks between which the count is published
+            for first in range(0, n, PROGRESS_CHUNK):
+                for _ in range(min(PROGRESS_CHUNK, n - first)):
+                    step()
+                progress[STEPS_DONE] = steps_done + min(first + PROGRESS_CHUNK, n)
             # Forces are computed before particles move within a step: one more step at rest
             # makes the contact forces (hence the stress) those of the fully deformed cell.
             O.cell.velGrad = self.Matrix3.Zero
             step()
             dem_time += time.perf_counter() - t0
             cpu_time += time.process_time() - c0
+            steps_done += n + 1
+            progress[STEPS_DONE] = steps_done
             particle_steps += (n + 1) * self.n_spheres[k]
             stress[k], tangent[k] = self._respond(k)
             if not (np.isfinite(stress[k]).all() and np.isfinite(tangent[k]).all()):
                 raise FloatingPointError(f"non-finite stress or tangent in the RVE of Gauss point {self.gps[k]}")
+            progress[RVES_DONE] += 1
         return {"stress": stress, "tangent": tangent, "steps": steps, "dem_time": dem_time, "dem_cpu_time": cpu_time,
                 "particle_steps": particle_steps}
 
@@ -388,17 +433,17 @@ def _trial(conn: Connection, host: Host, args: dict) -> bool:
         os._exit(0)  # close
 
 
-def serve(conn: Connection) -> None:
+def serve(conn: Connection, progress: np.ndarray | None = None) -> None:
     """Holder loop (also continued by a trial child after commit); leaves when the driver is gone."""
     try:
-        _serve(conn)
+        _serve(conn, progress)
     except (OSError, EOFError):
         pass
     os._exit(0)
 
 
-def _serve(conn: Connection) -> None:
-    host = Host()
+def _serve(conn: Connection, progress: np.ndarray | None = None) -> None:
+    host = Host(progress)
     while True:
         try:
             cmd, args = conn.recv()
@@ -421,6 +466,11 @@ def _serve(conn: Connection) -> None:
 
 def main(argv: list[str]) -> None:
     fd = int(argv[0])
+    progress = None
+    if len(argv) > 1:  # the driver's progress block (module docstring)
+        progress_fd = int(argv[1])
+        progress = map_progress(progress_fd)
+        os.close(progress_fd)  # the mapping stays
     try:
         import ctypes
 
@@ -434,7 +484,7 @@ def main(argv: list[str]) -> None:
     pid = os.fork()
     if pid == 0:
         sys.stdout.flush()
-        serve(conn)
+        serve(conn, progress)
         os._exit(0)
     conn.close()
     # root: reap the lineage until nothing is left
