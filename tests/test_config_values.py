@@ -117,6 +117,10 @@ def test_values_outside_physical_bounds_name_the_key(key, value):
     refused(nested(key, value), key)
 
 
+def test_the_smallest_sphere_must_be_smaller_than_the_largest():
+    refused(nested("dem.diameter_min", 0.009), "dem.diameter_min")
+
+
 def test_a_load_path_strain_out_of_bounds_from_a_string():
     refused(nested("load_paths.path2.segments[1][1]", "2.5"), "load_paths.path2.segments[1][1]")
 

@@ -202,6 +202,10 @@ def _check_set_settings(config: dict, schema: dict) -> None:
 def _check_consistency(config: dict, schema: dict) -> None:
     from .paths import load_paths_from_config
 
+    dem = config["dem"]
+    if dem["diameter_min"] >= dem["diameter_max"]:  # YADE's psd would make one size, or none
+        raise ConfigError(f"config key 'dem.diameter_min': {dem['diameter_min']} is not below "
+                          f"'dem.diameter_max' ({dem['diameter_max']})")
     paths = load_paths_from_config(config)
     for key in ("training_path", "validation_path"):
         if config[key] not in paths:
