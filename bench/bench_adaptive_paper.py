@@ -1,5 +1,5 @@
 """Adaptive FEM–DEM–ML at the paper mesh: 5×5×10 hexahedra (2000 Gauss points), Path2, 1000-sphere
-RVEs where the surrogate is unsure, on this machine (issue 14 §4: under 30 minutes).
+RVEs where the surrogate is unsure, on this machine (target: under 30 minutes).
 
 The networks are material models, independent of the mesh: the bench takes those of a finished
 default-scale run (trained on 400-sphere RVE data), with the settings of the config that trained

@@ -1,4 +1,4 @@
-"""Issue 13: the RVE procedure of FEM–DEM measured against a triaxial test driven directly in YADE.
+"""The RVE procedure of FEM–DEM measured against a triaxial test driven directly in YADE.
 
 For each packing (seeds ``--seeds``, ``--spheres`` spheres, consolidated as the rule rve does;
 or ``--packings`` files) it runs, one YADE process at a time:
@@ -9,7 +9,7 @@ direct tests (``granular_multiscale.dem.direct_triaxial``, continuous unless sta
   direct stops 1    the servo test, the cell stopped (velGrad = 0) for 1 step every 0.1 % axial strain
   direct stops 50   ... for 50 steps every 0.1 % (exaggerates whatever a stop does)
 uniform-field FEM–DEM of one RVE (TriaxialProblem + DemMaterialPointSet of 1 point)
-  fem-dem 45        smooth platens, 45 steps to 4.5 %, dem.newton.tolerance 1e-3 (issue 13's run)
+  fem-dem 45        smooth platens, 45 steps to 4.5 %, dem.newton.tolerance 1e-3 (the reference setting)
   fem-dem 90 / 180  90 or 180 steps
   fem-dem tol 1e-4 / tol 2e-2   other Newton tolerances (2e-2 = the project's default)
   fem-dem snap 0    no scene re-load every 10 steps (dem.snapshot_interval 0)

@@ -1,4 +1,4 @@
-"""Adaptive FEM–DEM–ML (issue 14) at the tiny scale with real YADE RVEs and real (quickly trained)
+"""Adaptive FEM–DEM–ML at the tiny scale with real YADE RVEs and real (quickly trained)
 networks: the DEM subset's replay, and the adaptive set at its two ends and in between.
 
 * a replayed RVE is bit for bit the RVE that followed the same strains from step 0;

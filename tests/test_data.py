@@ -145,7 +145,7 @@ def test_full_tangent_helpers_round_trip():
 
 
 def test_tangent_variables_take_older_checkpoint_records():
-    """A run resumed from a checkpoint written before issue 13 holds 21-entry records for its first steps."""
+    """A run resumed from a checkpoint written before the run file kept the full tangent holds 21-entry records for its first steps."""
     D = isotropic_elastic_tangent(5e7, 0.3) + np.diag([0, 0, 0, 0, 0, 1e5])
     skew = D.copy()
     skew[0, 3] += 2e5

@@ -24,7 +24,7 @@ def _yade(code: str, timeout: float = 300) -> dict:
 
 
 def test_yade_steps_a_periodic_packing_in_the_venv():
-    """Issue 2 §1: YADE imports in this venv, steps a small periodic packing, and reads its stress."""
+    """YADE imports in this venv, steps a small periodic packing, and reads its stress."""
     result = _yade("""
 import json
 from granular_multiscale.dem.yade_env import import_yade

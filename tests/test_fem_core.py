@@ -162,7 +162,7 @@ def test_from_config_reads_specimen_and_newton():
     np.testing.assert_allclose(problem.initial_stress, [-2e5, -2e5, -2e5, 0, 0, 0])
 
 
-# -- the tangent in the run file (issue 13): what the solver used, without loss -------------------------------------
+# -- the tangent in the run file: what the solver used, without loss -------------------------------------
 class _LinearSkew:
     """σ = σ0 + D_i · engineering(ε), D_i a known constant per point; not symmetric unless `skew` is 0.
 
@@ -217,7 +217,7 @@ def _skew_run(tmp_path, skew=1.0, repair="none", floor=1e-3):
 def test_non_symmetric_tangent_round_trips_whole_through_the_run_file(tmp_path):
     """A tangent that is not symmetric (like FEM–ML's autodiff Jacobian) is stored in all 36 entries;
     the 21-entry `tangent` is the upper triangle of its symmetric part, and the file says so.
-    (Before issue 13 the file held only the upper triangle of D: its lower triangle was lost.)"""
+    (Formerly the file held only the upper triangle of D: its lower triangle was lost.)"""
     from granular_multiscale.data import run_tangent
     from granular_multiscale.tensors import TCOMP, TCOMP36, tangent_to_upper
 

@@ -1,4 +1,4 @@
-"""Issue 13: YADE and pip's VTK in one process (see dem/vtk_order.py and docs/environment.md).
+"""YADE and pip's VTK in one process (see dem/vtk_order.py and docs/environment.md).
 
 Debian's YADE loads Debian's VTK 9.1 into the global symbol scope; pip's VTK (9.7) loaded after
 it binds to those symbols and crashes. Each test runs its imports in a fresh process.

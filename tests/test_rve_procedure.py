@@ -1,4 +1,4 @@
-"""Issue 13: the RVE procedure of FEM–DEM (a strain increment as a constant velocity gradient
+"""The RVE procedure of FEM–DEM (a strain increment as a constant velocity gradient
 for N steps, then one step at rest) against a triaxial test driven directly in YADE.
 
 Small scale: two 100-sphere packings, 30 steps to 3 % axial strain (the peak of these RVEs),

@@ -376,7 +376,7 @@ def test_checkpoint_resume_with_psi_is_bit_identical(data):
 
 
 def test_fem_ml_run_file_holds_the_autodiff_tangent_whole(models, tmp_path):
-    """Issue 13: the autodiff tangent (NNσ's exact Jacobian) is not symmetric; the run file must give
+    """The autodiff tangent (NNσ's exact Jacobian) is not symmetric; the run file must give
     back the tangent the solver had at every converged state, all 36 entries, not its upper triangle."""
     from granular_multiscale.data import read_run, run_tangent, write_run
     from granular_multiscale.fem.triaxial import TriaxialProblem

@@ -110,7 +110,7 @@ def test_fem_ml_runs_and_metrics(tiny_chain):
         # training data, by a little (measured at tolerance 0: 8 of 16 points at the last step only, by at
         # most 1.4 % of the strains' range). Before, with Path1 alone training, eps12 was 0 to round-off in
         # all training data (range ±4e-18) and each strain was measured by its own span: the FEM–ML field's
-        # eps12 of 3-5e-5 put all 16 points out at every step, by 1e10-1e12 "ranges" (issue 12; the unit
+        # eps12 of 3-5e-5 put all 16 points out at every step, by 1e10-1e12 "ranges" (the unit
         # test in test_surrogate_uncertainty.py keeps that case)
         axial = run.axial_strain.values
         assert (points[axial < 0.9 * axial.max()] == 0).all(), points
@@ -133,7 +133,7 @@ def test_fem_ml_runs_and_metrics(tiny_chain):
     # even 16 Gauss points and seconds of training follow the reference within a few % of its peak force.
     # Measured (deterministic, the same in repeated runs of this chain), training on one of path1's two
     # histories and 6 RVE paths: largest top-force error 6.06 % (fem_ml, path1), 6.43 % (fem_ml, path2),
-    # 3.38 / 2.74 % (fem_ml_nohist). (Issue 13, when the "held-out" points were mirror images of training
+    # 3.38 / 2.74 % (fem_ml_nohist). (Formerly, when the "held-out" points were mirror images of training
     # points and both histories trained: 3.33 / 3.38 / 3.22 / 3.07 %.) Either way, 25 % would let
     # almost anything pass; the bound catches a real regression
     for run in ("fem_ml", "fem_ml_nohist"):

@@ -1,4 +1,4 @@
-"""The uncertainty a FEM–ML run reports (issue 12 §3): the ensemble spread per Gauss point and
+"""The uncertainty a FEM–ML run reports: the ensemble spread per Gauss point and
 step in the run file, its checkpoint round trip and Gauss-point mapping, the out-of-range
 margin of the strain features, and the calibration table and figure.
 

@@ -27,7 +27,7 @@ point from the first evaluation on (FEM–DEM), threshold ∞ never (FEM–ML).
 
 When promotions happen, and why no step is solved twice
 -------------------------------------------------------
-The issue asks for promotion after a converged step and the step solved again with the mixed
+The method asks for promotion after a converged step and the step solved again with the mixed
 set. The set cannot make the solver repeat a step, and a promotion that only takes effect at the
 next step would leave the flagged step answered by the surrogate. Instead the indicator is
 checked at **every evaluation**, the predictor's (the first of each step) included, and a point

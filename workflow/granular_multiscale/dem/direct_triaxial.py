@@ -1,5 +1,5 @@
 """A drained triaxial test driven directly in YADE on one periodic RVE, and the same RVE under
-this project's FEM–DEM procedure, to measure the procedure against YADE itself (issue 13).
+this project's FEM–DEM procedure, to measure the procedure against YADE itself.
 
 Run in its own process (YADE rebinds globals on import)::
 
@@ -7,7 +7,7 @@ Run in its own process (YADE rebinds globals on import)::
 
 or from Python through :func:`run_direct`, which does exactly that. ``drivers.fem_dem.run_fem_dem_uniform``
 (caller side, no YADE in the calling process) runs the uniform-field FEM–DEM of one RVE
-(issue 13's setting: :func:`fem_dem_config`); :func:`at_strains` and :func:`peak` read q and εv
+(the reference setting: :func:`fem_dem_config`); :func:`at_strains` and :func:`peak` read q and εv
 of either at chosen axial strains, :func:`increments_of` turns either into a replay.
 Findings: docs/rve_procedure.md; study: bench/bench_rve_procedure.py.
 
@@ -378,7 +378,7 @@ def run_direct(spec: DirectSpec, packing: str | Path, timeout: float | None = No
 
 def fem_dem_config(n_steps: int = 45, axial_strain: float = 0.045, tolerance: float = 1e-3,
                    dem: dict | None = None, newton: dict | None = None) -> dict:
-    """The issue-13 FEM–DEM setting: uniform field, smooth platens, one monotonic segment,
+    """The reference FEM–DEM setting: uniform field, smooth platens, one monotonic segment,
     dem.newton.tolerance (other keys: the defaults, or ``dem`` / ``dem.newton`` overrides)."""
     from ..config import validate_config
 

@@ -1,4 +1,4 @@
-"""YADE and pip's VTK in one process: load VTK so that the two VTK builds never mix (issue 13).
+"""YADE and pip's VTK in one process: load VTK so that the two VTK builds never mix.
 
 Cause. Debian's YADE links Debian's VTK 9.1 (``libvtk*-9.1.so.1``, needed by ``boot.so``,
 ``libyade.so`` and several plugins), and ``yade/__init__.py`` switches Python's dlopen flags to
