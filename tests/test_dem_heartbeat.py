@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import math
 import re
+import time
 
 import numpy as np
 import pytest
@@ -113,3 +114,23 @@ def test_dask_heartbeat(tmp_path_factory, caplog):
     with DemMaterialPointSet(4, [path], settings, n_workers=2) as local:  # the local pool, no heartbeat
         local.heartbeat_interval = math.inf
         assert np.array_equal(local.evaluate(de)[0], stress)
+
+
+def test_a_load_step_of_many_short_trials_beats_too(tmp_path_factory, caplog):
+    """The heartbeat's clock runs over the load step, not over one trial: a step whose Newton
+    trials are each shorter than the interval still logs a line once the interval has passed."""
+    path, _ = packing(tmp_path_factory)
+    name = "test_dem_heartbeat_step"
+    caplog.set_level(logging.INFO, logger=name)
+    trial = re.compile(r"DEM trial (\d+) of this load step (running|done)")
+    with DemMaterialPointSet(4, [path], SETTINGS, n_workers=2, logger=logging.getLogger(name)) as m:
+        m.heartbeat_interval = math.inf
+        t0 = time.perf_counter()
+        m.evaluate(_increment() * 0.1)
+        one_trial = time.perf_counter() - t0
+        m.heartbeat_interval = 2.5 * one_trial  # longer than a trial, shorter than the 10 below
+        caplog.clear()
+        for k in range(2, 12):
+            m.evaluate(_increment() * 0.1 * k)
+        numbers = [int(match.group(1)) for r in caplog.records if (match := trial.search(r.getMessage()))]
+        assert numbers and min(numbers) >= 2, (one_trial, [r.getMessage() for r in caplog.records])

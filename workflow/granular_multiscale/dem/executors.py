@@ -112,11 +112,11 @@ class _Beats:
     """When a waiting call_all beats: every ``interval`` s (``math.inf``: never), and once at the
     end if it beat at all."""
 
-    def __init__(self, heartbeat: Heartbeat | None, interval: float | None):
+    def __init__(self, heartbeat: Heartbeat | None, interval: float | None, first: float | None = None):
         self.heartbeat = heartbeat or log_progress
         self.interval = HEARTBEAT_INTERVAL if interval is None else float(interval)
         self.t0 = time.monotonic()
-        self.next = self.t0 + self.interval
+        self.next = self.t0 + (self.interval if first is None else float(first))
         self.count = 0
 
     def timeout(self) -> float | None:
@@ -224,9 +224,11 @@ class LocalExecutor:
         self.n_slots = n_slots
         self.labels = [f"local worker {i} (pid {p.pid})" for i, (p, _) in enumerate(self.hosts)]
 
-    def call_all(self, messages: list, heartbeat: Heartbeat | None = None, interval: float | None = None) -> list:
+    def call_all(self, messages: list, heartbeat: Heartbeat | None = None, interval: float | None = None,
+                 first: float | None = None) -> list:
         """Send message i to host i (None: skip), then gather every answer; while waiting, call
-        ``heartbeat(Progress)`` every ``interval`` s (module docstring)."""
+        ``heartbeat(Progress)`` every ``interval`` s, the first time after ``first`` s (default
+        ``interval``: a caller making many short calls keeps its own clock; module docstring)."""
         pending = {}
         called = []
         for i, ((proc, conn), msg) in enumerate(zip(self.hosts, messages)):
@@ -242,7 +244,7 @@ class LocalExecutor:
             pending[conn] = i
             called.append(i)
         command = next((m[0] for m in messages if m is not None), "call")
-        beats = _Beats(heartbeat, interval)
+        beats = _Beats(heartbeat, interval, first)
 
         def progress(elapsed: float, finished: bool = False) -> Progress:
             return sum_progress(command, elapsed, [self.progress_blocks[i] for i in called],
@@ -346,12 +348,13 @@ class DaskExecutor:
                 out.append(None)
         return out
 
-    def call_all(self, messages: list, heartbeat: Heartbeat | None = None, interval: float | None = None) -> list:
+    def call_all(self, messages: list, heartbeat: Heartbeat | None = None, interval: float | None = None,
+                 first: float | None = None) -> list:
         """As :meth:`LocalExecutor.call_all`; the heartbeat's progress comes from the actors."""
         pending = [(i, self.actors[i].call(m)) for i, m in enumerate(messages) if m is not None]
         called = [i for i, _ in pending]
         command = next((m[0] for m in messages if m is not None), "call")
-        beats = _Beats(heartbeat, interval)
+        beats = _Beats(heartbeat, interval, first)
         waiting = set(called)
 
         def progress(elapsed: float, finished: bool = False) -> Progress:

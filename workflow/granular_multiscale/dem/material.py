@@ -93,6 +93,8 @@ class DemMaterialPointSet(MaterialPointSet):
     lazy_scenes = False
     #: seconds between two progress lines of a trial still running (module docstring)
     heartbeat_interval: float = HEARTBEAT_INTERVAL
+    #: the first trial of this load step or its last heartbeat (time.monotonic); None before the first trial
+    _last_beat: float | None = None
 
     def __init__(
         self,
@@ -261,8 +263,13 @@ class DemMaterialPointSet(MaterialPointSet):
             return t["stress"].copy(), (t["tangent"].copy() if need_tangent else None)
         dstrain = strain - self.conv_strain
         t0 = time.perf_counter()
+        # the heartbeat's clock runs over the whole load step: its trials may each be shorter
+        # than the interval while the step takes minutes
+        if self._last_beat is None:
+            self._last_beat = time.monotonic()
         replies = self.executor.call_all(self._slot_messages("trial", {"dstrain": dstrain}),
-                                         heartbeat=self._heartbeat, interval=self.heartbeat_interval)
+                                         heartbeat=self._heartbeat, interval=self.heartbeat_interval,
+                                         first=max(0.0, self._last_beat + self.heartbeat_interval - time.monotonic()))
         wall = time.perf_counter() - t0
         self._account(wall, replies)
         stress = np.empty((self.n_points, 6))
@@ -275,6 +282,7 @@ class DemMaterialPointSet(MaterialPointSet):
 
     def _heartbeat(self, progress: Progress) -> None:
         """Log how far the running trial is (``trials`` counts the trials of this load step so far)."""
+        self._last_beat = time.monotonic()
         self.log.info("%s", format_progress(progress, f"DEM trial {int(self._step['trials']) + 1} of this load step"))
 
     def commit(self, strain=None) -> None:
@@ -284,6 +292,7 @@ class DemMaterialPointSet(MaterialPointSet):
             self.executor.call_all(self._slot_messages("commit"))
             t = self._trial
             self.conv_strain, self.conv_stress, self.conv_tangent = t["strain"], t["stress"], t["tangent"]
+            self._last_beat = None  # the next load step's clock starts at its first trial
             self.replay.append(t["dstrain"])
             self._trial = None
         else:  # nothing evaluated since the last commit: the step changed nothing
