@@ -156,9 +156,10 @@ def chain_faults(tour: Tour) -> None:
              f"run file written: {made}")
 
     # kill -9 of the workflow while the FEM-ML rule runs, then --unlock and the same command
-    shutil.rmtree(out / "fem_ml")
-    proc = snakemake(["-j2", *options, "--", str(target)], popen=True)
     log = out / "logs" / "fem_ml"
+    shutil.rmtree(out / "fem_ml")
+    shutil.rmtree(log)  # its log appears again once the FEM-ML job runs: then the workflow is killed
+    proc = snakemake(["-j2", *options, "--", str(target)], popen=True)
     deadline = time.time() + 120
     while time.time() < deadline and not (log.exists() and any(log.iterdir())):
         time.sleep(0.2)
@@ -168,8 +169,9 @@ def chain_faults(tour: Tour) -> None:
     rc, text = snakemake(["-j2", *options, "--", str(target)])
     unlock_rc, unlock_text = snakemake([*options, "--unlock"])
     rc2, text2, equal = rerun()
+    taken_over = [line.strip() for line in text.splitlines() if "taking over" in line]
     tour.add("kill -9 of the workflow during FEM-ML; rerun; --unlock; rerun", f"{rc}, {unlock_rc}, {rc2}",
-             text, equal, "the lock left behind: " + first_message(text2 if rc2 else text))
+             taken_over[0] if taken_over else text, equal)
     locks(tour, out, options, target, clean)
 
 
@@ -232,7 +234,9 @@ def config_faults(tour: Tour) -> None:
     for fault, folder in [("output_dir: \"\"", ""), ("output_dir: /", "/"), ("output_dir: . (the repository)", "."),
                           ("output_dir: results/tiny/ (trailing slash)", "results/tiny/")]:
         rc, text = snakemake(["-n", *tour.overlay("dir", {"output_dir": folder})])
-        tour.add(fault, rc, text, None)
+        planned = sorted({line.split()[1].split("/")[0] + "/" + line.split()[1].split("/")[1]
+                          for line in text.splitlines() if line.strip().startswith("output: results/")})
+        tour.add(fault, rc, "" if rc == 0 else text, None, f"accepted: writes under {', '.join(planned)}" if rc == 0 else "")
     rc, text = snakemake(["-n", *tour.overlay("yaml", "specimen: {confining_pressure: [1\n")])
     tour.add("invalid YAML in a --configfile overlay", rc, text, None, "Snakemake's own message")
     rc, text = snakemake(["-n", "--configfile", TINY, str(tour.work / "missing.yaml")])
