@@ -3,7 +3,7 @@
 For each packing (seeds ``--seeds``, ``--spheres`` spheres, consolidated as the rule rve does;
 or ``--packings`` files) it runs, one YADE process at a time:
 
-direct tests (``granular_multiscale.dem.direct_triaxial``, continuous unless stated)
+direct tests (``granular_multiscale.studies.direct_triaxial``, continuous unless stated)
   direct            axial rate 2.5/s, servo holds σ11 = σ22 = −p, shear strains zero  (the reference)
   direct shear free the same, the servo also holds the shear stresses at 0 (the FEM's boundary condition)
   direct stops 1    the servo test, the cell stopped (velGrad = 0) for 1 step every 0.1 % axial strain
@@ -48,8 +48,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "workflow"))
 
-from granular_multiscale.drivers.fem_dem import run_fem_dem_uniform  # noqa: E402
-from granular_multiscale.dem.direct_triaxial import (  # noqa: E402
+from granular_multiscale.studies.uniform_fem_dem import run_fem_dem_uniform  # noqa: E402
+from granular_multiscale.studies.direct_triaxial import (  # noqa: E402
     REPORT_AT,
     DirectSpec,
     at_strains,

@@ -1,8 +1,9 @@
 """Rules train_<network>: NNσ or ND (with or without history variables) from the dataset files."""
 
+from granular_multiscale.analysis.figures import plot_losses
 from granular_multiscale.runlog import setup_logging, timed_rule
 from granular_multiscale.surrogate.dataset import read_dataset
-from granular_multiscale.surrogate.training import plot_losses, train, write_table
+from granular_multiscale.surrogate.training import train, write_table
 
 
 def main(train_file, heldout_file, kind, use_history, settings, seed, config, out, log) -> None:

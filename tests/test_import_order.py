@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from granular_multiscale.dem import vtk_order
+from granular_multiscale import vtk_order
 from granular_multiscale.dem.yade_env import child_env
 
 SIGSEGV = {-11, 139}  # killed by SIGSEGV (139 when the exit goes through a shell)

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from dem_fixtures import packing
 
-from granular_multiscale.drivers.fem_dem import run_fem_dem_uniform
-from granular_multiscale.dem.direct_triaxial import (
+from granular_multiscale.studies.uniform_fem_dem import run_fem_dem_uniform
+from granular_multiscale.studies.direct_triaxial import (
     DirectSpec,
     at_strains,
     fem_dem_config,

@@ -4,12 +4,13 @@ import numpy as np
 import pytest
 import torch
 
+from granular_multiscale.analysis.figures import plot_losses
 from granular_multiscale.config import CONFIG_DIR, load_config, validate_config
 from granular_multiscale.materials.elastoplastic import Elastoplastic
 from granular_multiscale.paths import load_paths_from_config
 from granular_multiscale.surrogate.dataset import STRAIN_FEATURES, TANGENT_TARGETS, build_dataset, features, targets
 from granular_multiscale.surrogate.models import EnsembleMLP, ModelFileError, SurrogateModel
-from granular_multiscale.surrogate.training import TrainingError, model_seed, plot_losses, train
+from granular_multiscale.surrogate.training import TrainingError, model_seed, train
 
 CONFIG = validate_config({"reference_material": "elastoplastic"})
 FAST = dict(CONFIG["surrogate"], epochs=6, learning_rate=3e-3, log_every=2)

@@ -181,10 +181,21 @@ def validate_config(config: dict, schema: dict | None = None) -> dict:
     return config
 
 
+def merged(base: dict, override: dict) -> dict:
+    """`base` with the keys of `override` replaced, nested mappings key by key."""
+    out = dict(base)
+    for key, value in override.items():
+        out[key] = merged(base[key], value) if isinstance(value, dict) and isinstance(base.get(key), dict) else value
+    return out
+
+
+def rve_paths_section(config: dict) -> dict:
+    """The ``rve_paths`` settings every RVE-path set starts from (all but ``sets``)."""
+    return {k: v for k, v in config["rve_paths"].items() if k != "sets"}
+
+
 def _check_set_settings(config: dict, schema: dict) -> None:
     """Each RVE-path set's own ``settings``: keys of rve_paths, with the section's schema."""
-    from .dem.strain_paths import merged, set_section
-
     schema = schema["properties"]["rve_paths"]
     section_schema = {**schema, "properties": {k: v for k, v in schema["properties"].items() if k != "sets"}}
     for name, definition in config["rve_paths"]["sets"].items():
@@ -193,7 +204,7 @@ def _check_set_settings(config: dict, schema: dict) -> None:
         if unknown:
             raise ConfigError(f"config key 'rve_paths.sets.{name}.settings': unknown keys {unknown} (keys of rve_paths "
                               f"other than sets: {sorted(section_schema['properties'])})")
-        errors = list(jsonschema.Draft7Validator(section_schema).iter_errors(merged(set_section(config), settings)))
+        errors = list(jsonschema.Draft7Validator(section_schema).iter_errors(merged(rve_paths_section(config), settings)))
         if errors:
             e = errors[0]
             raise ConfigError(f"config key 'rve_paths.sets.{name}.settings.{_key(e.absolute_path)}': {e.message}")

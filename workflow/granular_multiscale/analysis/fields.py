@@ -23,7 +23,7 @@ import numpy as np
 import xarray as xr
 from skfem import MeshHex
 
-from ..dem import vtk_order
+from .. import vtk_order
 
 # Before pyvista: where YADE is loaded, pip's VTK must be loaded deep-bound or it binds to
 # YADE's VTK 9.1 and segfaults (ImportError if that already happened; docs/environment.md).

@@ -365,3 +365,9 @@ def mode_map(runs: Mapping[str, xr.Dataset], steps: list[int], out: str | Path, 
     fig.colorbar(image, cax=bar).set_label("share of the points (along y) in DEM mode", fontsize=8)
     fig.suptitle(title, fontsize=10)
     return save_figure(fig, out, dpi)
+
+
+def plot_losses(losses: dict[str, pd.DataFrame], path, loss_name: str = "MAE") -> None:
+    """Training and held-out loss per epoch of one or more networks (panel per key), log scale."""
+    training_curves({f"{label}|": df for label, df in losses.items()}, path, loss_name=loss_name,
+                    figsize=(6.0 * len(losses), 4.0))

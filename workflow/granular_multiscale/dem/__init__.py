@@ -9,6 +9,5 @@ because ``from yade import *`` rebinds globals; nothing here imports yade at imp
                  activation by replay (the DEM points of the adaptive set)
 * ``strain_paths``  designed strain histories of the rve_paths rule (numpy only, no YADE)
 * ``run``        what the ``rve`` rule script calls (FEM–DEM runs: ``drivers.fem_dem``)
-* ``yade_env``   one-thread YADE start-up shared by all of them
-* ``vtk_order``  YADE and pip's VTK in one process (VTK first; imports neither itself)
+* ``yade_env``   one-thread YADE start-up shared by all of them (VTK first: ``vtk_order``)
 """

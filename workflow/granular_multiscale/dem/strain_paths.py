@@ -54,7 +54,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import ConfigError, load_config
+from ..config import ConfigError, load_config, merged, rve_paths_section
 from ..tensors import ENGINEERING_FACTOR, tensor_to_voigt, voigt_to_tensor
 from .worker import steps_for_increment
 
@@ -149,20 +149,12 @@ def check_section(section: dict) -> None:
                               f"{section[key]} (needs at least {room:g})")
 
 
-def merged(base: dict, override: dict) -> dict:
-    """`base` with the keys of `override` replaced, nested mappings key by key."""
-    out = dict(base)
-    for key, value in override.items():
-        out[key] = merged(base[key], value) if isinstance(value, dict) and isinstance(base.get(key), dict) else value
-    return out
-
-
 def set_section(config: dict, name: str | None = None) -> dict:
     """The ``rve_paths`` settings (bounds, increment, family settings, contact loss; not ``sets``)
     that set `name` is drawn and driven with: the section's, with what the set's own ``settings``
     replace (e.g. a set of long triaxial trajectories to larger strains: ``{max_strain: 0.09}``).
     Without a name, the section's."""
-    section = {k: v for k, v in config["rve_paths"].items() if k != "sets"}
+    section = rve_paths_section(config)
     if name is None:
         return section
     return merged(section, set_definition(config, name).get("settings", {}))

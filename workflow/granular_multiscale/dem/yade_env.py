@@ -13,7 +13,7 @@ import os
 import subprocess
 import sys
 
-from . import vtk_order
+from .. import vtk_order
 
 ENV_THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 

@@ -3,7 +3,6 @@ rule scripts, benches and studies (no Snakemake here).
 
     run_fem_dem(config, path_name, packing_paths, output, checkpoint, n_workers, logger,
                 problem="triaxial", weak_packing=None)
-    run_fem_dem_uniform(packing, config)   one RVE under the uniform field (RVE-procedure study)
 
 A problem with a weak zone (``biaxial.weak_zone``) gives the RVEs inside it the weak packing
 (``drivers/problems.py``).
@@ -15,16 +14,11 @@ import copy
 import logging
 import shutil
 import time
-from pathlib import Path
-
-import numpy as np
 
 from .. import checkpoint as checkpoints
 from ..data import write_run
-from ..dem.material import SETTINGS_KEYS, DemMaterialPointSet
+from ..dem.material import DemMaterialPointSet
 from ..dem.run import inertial_number
-from ..fem.triaxial import TriaxialProblem
-from ..paths import load_paths_from_config
 from .problems import dem_packings, problem_and_path
 
 NEWTON_OVERRIDES = ("tolerance", "max_iterations", "max_cutbacks", "line_search", "tangent_repair", "acceleration",
@@ -108,38 +102,3 @@ def run_fem_dem(config: dict, path_name: str, packing_paths: list[str], output: 
         shutil.rmtree(scenes_dir)
     logger.info("wrote %s", output)
     return ds
-
-
-def run_fem_dem_uniform(packing: str | Path, config: dict, snapshot_interval: int | None = None,
-                        logger=None) -> dict:
-    """Uniform-field FEM–DEM of one RVE (as :func:`run_fem_dem` with specimen.uniform_field):
-    returns per step the one point's converged strain and stress, q, εv, axial strain, Newton
-    iterations and material evaluations, the committed strain increments (``dstrain``, what a
-    replay needs to be exact) and the wall time."""
-    logger = logger or logging.getLogger("granular_multiscale.drivers.fem_dem")
-    cfg = dem_newton_config(config)
-    problem = TriaxialProblem.from_config(cfg)
-    path = load_paths_from_config(cfg)["mono"]
-    interval = cfg["dem"]["snapshot_interval"] if snapshot_interval is None else int(snapshot_interval)
-    t0 = time.perf_counter()
-    with DemMaterialPointSet(problem.n_material_points, [packing], {k: cfg["dem"][k] for k in SETTINGS_KEYS},
-                             n_workers=1, snapshot_interval=interval, logger=logger) as material:
-        ds = problem.run(material, path, method="dem", logger=logger, progress=False)
-        dstrain = np.array(material.replay).reshape(-1, 6)
-    stress = ds["stress"].values.mean(axis=1)  # uniform: every Gauss point holds the one RVE's stress
-    strain = ds["strain"].values.mean(axis=1)
-    return {
-        "axial_strain": ds["axial_strain"].values.tolist(),
-        "volumetric_strain": ds["volumetric_strain"].values.tolist(),
-        "q": (0.5 * (stress[:, 0] + stress[:, 1]) - stress[:, 2]).tolist(),
-        "stress": stress.tolist(),
-        "strain": strain.tolist(),
-        "dstrain": dstrain.tolist(),
-        "newton_iterations": ds["newton_iterations"].values.tolist(),
-        "material_evaluations": ds["material_evaluations"].values.tolist(),
-        "cutbacks": ds["cutbacks"].values.tolist(),
-        "wall_time": time.perf_counter() - t0,
-        "snapshot_interval": interval,
-        "settings": {k: cfg["dem"][k] for k in SETTINGS_KEYS},
-        "tolerance": cfg["newton"]["tolerance"],
-    }

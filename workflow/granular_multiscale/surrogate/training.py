@@ -265,14 +265,6 @@ def component_mae(model: SurrogateModel, train_ds: xr.Dataset, heldout_ds: xr.Da
     return table
 
 
-def plot_losses(losses: dict[str, pd.DataFrame], path, loss_name: str = "MAE") -> None:
-    """Training and held-out loss per epoch of one or more networks (panel per key), log scale."""
-    from ..analysis.figures import training_curves
-
-    training_curves({f"{label}|": df for label, df in losses.items()}, path, loss_name=loss_name,
-                    figsize=(6.0 * len(losses), 4.0))
-
-
 def write_table(table: pd.DataFrame, path) -> None:
     """CSV written atomically (temporary file in the target folder, then rename)."""
     with atomic_path(path) as tmp:

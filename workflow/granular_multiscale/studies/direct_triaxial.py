@@ -3,9 +3,9 @@ this project's FEM–DEM procedure, to measure the procedure against YADE itself
 
 Run in its own process (YADE rebinds globals on import)::
 
-    python -m granular_multiscale.dem.direct_triaxial spec.json packing.yade.gz result.json
+    python -m granular_multiscale.studies.direct_triaxial spec.json packing.yade.gz result.json
 
-or from Python through :func:`run_direct`, which does exactly that. ``drivers.fem_dem.run_fem_dem_uniform``
+or from Python through :func:`run_direct`, which does exactly that. ``studies.uniform_fem_dem.run_fem_dem_uniform``
 (caller side, no YADE in the calling process) runs the uniform-field FEM–DEM of one RVE
 (the reference setting: :func:`fem_dem_config`); :func:`at_strains` and :func:`peak` read q and εv
 of either at chosen axial strains, :func:`increments_of` turns either into a replay.
@@ -119,7 +119,7 @@ def _cell_strain(O) -> np.ndarray:
     included; ``_load`` keeps trsf₀)."""
     from scipy.linalg import logm
 
-    from .rve import _matrix3_to_numpy
+    from ..dem.rve import _matrix3_to_numpy
 
     F = _matrix3_to_numpy(O.cell.trsf) @ _TRSF0[0]
     L = np.real(logm(F))
@@ -133,7 +133,7 @@ class _Recorder:
         self.rows: list[dict] = []
 
     def __call__(self, tag: str = "") -> dict:
-        from .rve import _matrix3_to_numpy, stress_voigt
+        from ..dem.rve import _matrix3_to_numpy, stress_voigt
 
         s = stress_voigt(_matrix3_to_numpy(self.utils.getStress()))
         e = _cell_strain(self.O)
@@ -148,7 +148,7 @@ class _Recorder:
 
 def _load(O, packing: str, damping, homo_deform=None) -> None:
     """The packing as an RVE host holds it: O.load, then a scene-string round trip."""
-    from .rve import _matrix3_to_numpy
+    from ..dem.rve import _matrix3_to_numpy
 
     O.load(packing)
     O.stringToScene(O.sceneToString())
@@ -180,7 +180,7 @@ def _servo(O, spec: DirectSpec, record: _Recorder) -> dict:
     from yade import utils
     from yade.minieigenHP import Matrix3
 
-    from .rve import _matrix3_to_numpy, stress_and_tangent, stress_voigt, voigt_to_matrix3
+    from ..dem.rve import _matrix3_to_numpy, stress_and_tangent, stress_voigt, voigt_to_matrix3
 
     def stress_now():
         return stress_voigt(_matrix3_to_numpy(utils.getStress()))
@@ -248,8 +248,8 @@ def _servo(O, spec: DirectSpec, record: _Recorder) -> dict:
 def _replay(O, spec: DirectSpec, record: _Recorder) -> dict:
     from yade.minieigenHP import Matrix3
 
-    from .rve import voigt_to_matrix3
-    from .worker import steps_for_increment
+    from ..dem.rve import voigt_to_matrix3
+    from ..dem.worker import steps_for_increment
 
     increments = np.asarray(spec.replay_dstrain, dtype=float).reshape(-1, 6)
     record("start")
@@ -284,7 +284,7 @@ def _peri_triax(O, spec: DirectSpec, record: _Recorder) -> dict:
     from yade import utils
     from yade.wrapper import PeriTriaxController
 
-    from .rve import _matrix3_to_numpy, stress_voigt
+    from ..dem.rve import _matrix3_to_numpy, stress_voigt
 
     p = spec.pressure
     z0 = math.log(O.cell.trsf[2, 2])  # its strains are log(trsf_ii), consolidation included
@@ -343,7 +343,7 @@ def run_in_yade(spec: DirectSpec, packing: str) -> dict:
 
 def main(argv: list[str]) -> int:
     spec_path, packing_path, result_path = argv
-    from .yade_env import import_yade
+    from ..dem.yade_env import import_yade
 
     import_yade()
     spec = DirectSpec(**json.loads(Path(spec_path).read_text()))
@@ -361,13 +361,13 @@ def run_direct(spec: DirectSpec, packing: str | Path, timeout: float | None = No
     """One direct test in a fresh YADE process; returns its result dict (records, timing)."""
     from tempfile import TemporaryDirectory
 
-    from .yade_env import child_env
+    from ..dem.yade_env import child_env
 
     spec.check()
     with TemporaryDirectory() as tmp:
         spec_file, result_file = Path(tmp) / "spec.json", Path(tmp) / "result.json"
         spec_file.write_text(json.dumps(asdict(spec)))
-        cmd = [sys.executable, "-m", "granular_multiscale.dem.direct_triaxial", str(spec_file), str(packing),
+        cmd = [sys.executable, "-m", "granular_multiscale.studies.direct_triaxial", str(spec_file), str(packing),
                str(result_file)]
         proc = subprocess.run(cmd, env=child_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                               timeout=timeout)
