@@ -46,14 +46,14 @@ onstart:
 
 onsuccess:
     show_headline()  # the numbers this run has just written, for --report-after-run
-    output_lock.release(OUT)
+    output_lock.release(L.out)
 
 
 onerror:
-    output_lock.release(OUT)
+    output_lock.release(L.out)
 
 
 rule all:
     input:
-        ALL_TARGETS,
+        PLAN.all_targets(),
     default_target: True

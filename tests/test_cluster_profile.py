@@ -29,7 +29,8 @@ def test_slurm_profile_dry_run_builds_the_paper_dag(tmp_path, reference):
     paths and the FEM–ML runs, and writes nothing into output_dir."""
     result, output = dry_run(tmp_path, f"reference_material={reference}")
     assert result.returncode == 0, output[-3000:]
-    assert f"Using profile {PROFILE}" in output
+    # the cluster profile, and the workflow's own default profile (profiles/default: rerun-incomplete)
+    assert f"Using profiles {PROFILE} and workflow specific profile profiles/default" in output
     reference_rule = "fem_dem" if reference == "dem" else "fem_elastoplastic"
     assert f"{tmp_path}/paper/{reference_rule}/path1.h5" in output
     assert f"{tmp_path}/paper/{reference_rule}/path2.h5" in output

@@ -1,6 +1,6 @@
 """The package's layers: every import points down, and every module has a layer.
 
-    studies                      one-off studies that chose the RVE procedure (benches, tests)
+    plan, studies                the workflow's plan; one-off studies of the RVE procedure
     drivers                      compose a problem with a material-point set, write runs
       fem          adaptive             the solver; the set made of the surrogate and DEM sets
             dem  surrogate              the YADE and neural material-point sets
@@ -32,6 +32,8 @@ ALLOWED = {
     "analysis": (),
     "drivers": ("materials", "fem", "dem", "surrogate", "adaptive"),
     "studies": ("materials", "fem", "dem", "drivers"),
+    # the workflow's plan: paths, run sets and labels (threshold_label of the light adaptive package)
+    "plan": ("adaptive",),
     **{name: () for name in SHARED},
 }
 

@@ -15,57 +15,31 @@
 # of a FEM–DEM run plus the replays; `snakemake -j2 adaptive_runs` runs them.
 import re
 
-ADAPTIVE = config["adaptive"]
-ADAPTIVE_THRESHOLDS = {threshold_label(t): float(t) for t in ADAPTIVE["thresholds"]}
-ADAPTIVE_RUNS = [f"{OUT}/adaptive/{label}/{p}.h5" for label in ADAPTIVE_THRESHOLDS for p in ADAPTIVE_PATHS]
-# adaptive.report: the validation path's runs join the speed figure, the tables and the mode map
-ADAPTIVE_IN_REPORT = ADAPTIVE["report"] and REFERENCE == "fem_dem"
+from granular_multiscale.plan import ACTIVE_ROUNDS
 
 
-def adaptive_runs(path):
-    """{label: run file} of the adaptive runs of a load path, from the highest threshold to the lowest."""
-    return {f"adaptive FEM–DEM–ML, threshold {t:g}": f"{OUT}/adaptive/{label}/{path}.h5"
-            for label, t in sorted(ADAPTIVE_THRESHOLDS.items(), key=lambda item: -item[1])}
-
-
-def adaptive_depends(wc):
-    """What an adaptive run depends on besides its inputs, so that editing it re-runs the rule."""
-    return {
-        **fem_ml_depends(wc),
-        "dem": RUN_DEFINITION,
-        "adaptive": {k: v for k, v in ADAPTIVE.items() if k not in ("thresholds", "paths")},
-        "seed": config["seed"],
-    }
-
-
-# the thresholds each round runs at: every configured one in the first, the active-learning one in both
-ADAPTIVE_ROUND_THRESHOLDS = {
-    "": {**ADAPTIVE_THRESHOLDS, ACTIVE_LABEL: float(ACTIVE["threshold"])},
-    "active/": {ACTIVE_LABEL: float(ACTIVE["threshold"])},
-}
-
-for _round, _thresholds in ADAPTIVE_ROUND_THRESHOLDS.items():
+for _round, _thresholds in PLAN.adaptive_round_thresholds.items():
 
     rule:
         name:
             f"adaptive{'_active' if _round else ''}"
         input:
-            packings=PACKINGS,
-            sigma=model_file("sigma", _round),
-            tangent=model_file("tangent", _round),
+            packings=PLAN.packings,
+            sigma=L.model("sigma", _round),
+            tangent=L.model("tangent", _round),
         output:
-            run=f"{OUT}/{_round}adaptive/{{label}}/{{path}}.h5",
-            trajectories=f"{OUT}/{_round}adaptive/{{label}}/dem_points/{{path}}.h5",
+            run=L.adaptive("{label}", "{path}", _round),
+            trajectories=L.adaptive_dem_points("{label}", "{path}", _round),
         log:
-            f"{OUT}/logs/{_round}adaptive/{{label}}/{{path}}.log",
+            L.log(f"{_round}adaptive/{{label}}/{{path}}"),
         benchmark:
-            f"{OUT}/benchmarks/{_round}adaptive/{{label}}/{{path}}.tsv"
+            L.benchmark(f"{_round}adaptive/{{label}}/{{path}}")
         params:
             threshold=lambda wc, thresholds=_thresholds: thresholds[wc.label],
-            checkpoint=f"{OUT}/checkpoints/{_round}adaptive/{{label}}/{{path}}.ckpt",
-            tangent=SURROGATE["tangent"],
-            allow_partial=SURROGATE["keep_partial_runs"],
-            depends=adaptive_depends,
+            checkpoint=L.checkpoint(f"{_round}adaptive/{{label}}/{{path}}"),
+            tangent=config["surrogate"]["tangent"],
+            allow_partial=config["surrogate"]["keep_partial_runs"],
+            depends=lambda wc: PLAN.adaptive_definition(wc.path),
         wildcard_constraints:
             label="|".join(re.escape(label) for label in _thresholds),
         threads: config["dem"]["n_workers"]
@@ -75,24 +49,21 @@ for _round, _thresholds in ADAPTIVE_ROUND_THRESHOLDS.items():
 
 rule adaptive_runs:
     input:
-        ADAPTIVE_RUNS,
-
-
-ACTIVE_ROUNDS = {"first": "", "after one round": "active/"}
+        PLAN.adaptive_run_files(),
 
 
 rule table_active_learning:
     input:
-        runs=[f"{OUT}/{r}adaptive/{ACTIVE_LABEL}/{p}.h5" for r in ACTIVE_ROUNDS.values() for p in ACTIVE_PATHS],
-        references=[reference_run(p) for p in ACTIVE_PATHS] if REFERENCE == "fem_dem" else [],
-        fem_ml=[f"{OUT}/fem_ml/{p}.h5" for p in ACTIVE_PATHS],
+        runs=[L.adaptive(PLAN.active_label, p, r) for r in ACTIVE_ROUNDS.values() for p in PLAN.active_paths],
+        references=[PLAN.reference_run(p) for p in PLAN.active_paths] if PLAN.reference == "fem_dem" else [],
+        fem_ml=[L.fem_ml(p) for p in PLAN.active_paths],
     output:
-        csv=f"{OUT}/tables/active_learning.csv",
-        html=f"{OUT}/tables/active_learning.html",
+        csv=L.table("active_learning.csv"),
+        html=L.table("active_learning.html"),
     log:
-        f"{OUT}/logs/analysis/table_active_learning.log",
+        L.log("analysis/table_active_learning"),
     params:
-        paths=ACTIVE_PATHS,
+        paths=PLAN.active_paths,
         rounds=list(ACTIVE_ROUNDS),
     threads: 1
     script:

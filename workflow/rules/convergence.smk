@@ -8,25 +8,22 @@
 #   fem_dem_variant  {OUT}/tolerance_study/{variant}/{path}.h5: the fem_dem rule with the
 #                    variant's Newton settings in place of the dem.newton keys it names
 
+from granular_multiscale.plan import path_label
+
 STUDY = config["tolerance_study"]
 CAT_REFERENCE = "5 Reference"
 
 
-def study_dem(variant):
-    """The dem section of a study run: dem.newton with the variant's settings."""
-    return {**RUN_DEFINITION, "newton": {**config["dem"]["newton"], **STUDY["variants"][variant]}}
-
-
 use rule fem_dem as fem_dem_variant with:
     output:
-        f"{OUT}/tolerance_study/{{variant}}/{{path}}.h5",
+        L.tolerance_run("{variant}", "{path}"),
     log:
-        f"{OUT}/logs/tolerance_study/{{variant}}/{{path}}.log",
+        L.log("tolerance_study/{variant}/{path}"),
     benchmark:
-        f"{OUT}/benchmarks/tolerance_study/{{variant}}/{{path}}.tsv"
+        L.benchmark("tolerance_study/{variant}/{path}")
     params:
-        checkpoint=f"{OUT}/checkpoints/tolerance_study/{{variant}}/{{path}}.ckpt",
-        dem=lambda wildcards: study_dem(wildcards.variant),
+        checkpoint=L.checkpoint("tolerance_study/{variant}/{path}"),
+        dem=lambda wildcards: PLAN.study_dem(wildcards.variant),
         specimen=config["specimen"],
         newton=config["newton"],
         path=lambda wildcards: config["load_paths"][wildcards.path],
@@ -37,23 +34,23 @@ use rule fem_dem as fem_dem_variant with:
 
 rule tolerance_study:
     input:
-        runs=[f"{OUT}/tolerance_study/{v}/{STUDY['path']}.h5" for v in STUDY["variants"]],
+        runs=[L.tolerance_run(v, STUDY["path"]) for v in STUDY["variants"]],
     output:
-        csv=report(f"{OUT}/tables/tolerance_study.csv", caption="../report/tolerance_study_csv.rst",
+        csv=report(L.table("tolerance_study.csv"), caption="../report/tolerance_study_csv.rst",
                    category=CAT_REFERENCE, subcategory="Tolerance study"),
-        html=report(f"{OUT}/tables/tolerance_study.html", caption="../report/tolerance_study.rst",
+        html=report(L.table("tolerance_study.html"), caption="../report/tolerance_study.rst",
                     category=CAT_REFERENCE, subcategory="Tolerance study"),
-        figure=report(f"{OUT}/figures/tolerance_study.png", caption="../report/tolerance_study_figure.rst",
+        figure=report(L.figure("tolerance_study.png"), caption="../report/tolerance_study_figure.rst",
                       category=CAT_REFERENCE, subcategory="Tolerance study"),
     log:
-        f"{OUT}/logs/analysis/tolerance_study.log",
+        L.log("analysis/tolerance_study"),
     benchmark:
-        f"{OUT}/benchmarks/analysis/tolerance_study.tsv"
+        L.benchmark("analysis/tolerance_study")
     params:
         variants=STUDY["variants"],
         converged=STUDY["converged"],
         baseline=STUDY["baseline"],
-        path_label=STUDY["path"][:1].upper() + STUDY["path"][1:],
+        path_label=path_label(STUDY["path"]),
         settings=config["analysis"],
     script:
         "../../scripts/tolerance_study.py"

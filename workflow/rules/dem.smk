@@ -7,24 +7,19 @@
 #            histories (no FEM), checkpoint under {OUT}/checkpoints/rve_paths/; not in `all` by itself
 #            (the dataset asks for it through surrogate.training_sources "rve_paths:<name>")
 
-PACKINGS = [f"{OUT}/rve/packing_{k}.yade.gz" for k in range(config["dem"]["n_packings"])]
-# what defines a packing / a FEM–DEM run, not where it runs: a change of these reruns the rule
-PACKING_DEFINITION = {k: v for k, v in config["dem"].items() if k not in ("executor", "n_workers", "dask_scheduler", "newton")}
-RUN_DEFINITION = {k: v for k, v in config["dem"].items() if k not in ("executor", "n_workers", "dask_scheduler")}
-
 
 rule rve:
     output:
-        packings=PACKINGS,
-        summary=f"{OUT}/rve/summary.json",
+        packings=PLAN.packings,
+        summary=L.packing_summary(),
     params:
-        dem=PACKING_DEFINITION,
+        dem=PLAN.packing_definition,
         pressure=config["specimen"]["confining_pressure"],
         seed=config["seed"],
     log:
-        f"{OUT}/logs/rve.log",
+        L.log("rve"),
     benchmark:
-        f"{OUT}/benchmarks/rve.tsv"
+        L.benchmark("rve")
     threads: min(config["dem"]["n_packings"], config["dem"]["n_workers"])
     script:
         "../../scripts/prepare_rve.py"
@@ -32,16 +27,16 @@ rule rve:
 
 rule fem_dem:
     input:
-        packings=PACKINGS,
+        packings=PLAN.packings,
     output:
-        f"{OUT}/fem_dem/{{path}}.h5",
+        L.run("fem_dem", "{path}"),
     log:
-        f"{OUT}/logs/fem_dem/{{path}}.log",
+        L.log("fem_dem/{path}"),
     benchmark:
-        f"{OUT}/benchmarks/fem_dem/{{path}}.tsv"
+        L.benchmark("fem_dem/{path}")
     params:
-        checkpoint=f"{OUT}/checkpoints/fem_dem/{{path}}.ckpt",
-        dem=RUN_DEFINITION,
+        checkpoint=L.checkpoint("fem_dem/{path}"),
+        dem=PLAN.run_definition,
         specimen=config["specimen"],
         newton=config["newton"],
         path=lambda wildcards: config["load_paths"][wildcards.path],
@@ -50,30 +45,27 @@ rule fem_dem:
         "../../scripts/run_fem_dem.py"
 
 
-RVE_PATH_SETS = list(config["rve_paths"]["sets"])
-
-
 rule rve_paths:
     input:
         # the material points are YADE RVEs, or the elastoplastic model with reference_material: elastoplastic
-        packings=PACKINGS if config["reference_material"] == "dem" else [],
+        packings=PLAN.packings if PLAN.reference == "fem_dem" else [],
     output:
-        f"{OUT}/rve_paths/{{name}}.h5",
+        L.rve_paths("{name}"),
     log:
-        f"{OUT}/logs/rve_paths/{{name}}.log",
+        L.log("rve_paths/{name}"),
     benchmark:
-        f"{OUT}/benchmarks/rve_paths/{{name}}.tsv"
+        L.benchmark("rve_paths/{name}")
     params:
-        checkpoint=f"{OUT}/checkpoints/rve_paths/{{name}}.ckpt",
+        checkpoint=L.checkpoint("rve_paths/{name}"),
         definition=lambda wildcards: config["rve_paths"]["sets"][wildcards.name],
         rve_paths={k: v for k, v in config["rve_paths"].items() if k != "sets"},
-        dem=PACKING_DEFINITION,  # the DEM settings without dem.newton: there is no Newton here
+        dem=PLAN.packing_definition,  # the DEM settings without dem.newton: there is no Newton here
         pressure=config["specimen"]["confining_pressure"],
         seed=config["seed"],
         material=config["reference_material"],
         elastoplastic=config["elastoplastic"] if config["reference_material"] == "elastoplastic" else None,
     wildcard_constraints:
-        name="|".join(RVE_PATH_SETS),
+        name="|".join(PLAN.rve_path_sets),
     threads: config["dem"]["n_workers"]
     script:
         "../../scripts/run_rve_paths.py"
@@ -86,40 +78,36 @@ rule rve_paths:
 
 use rule rve as rve_spheres with:
     output:
-        packings=[f"{OUT}/rve_n{{n}}/packing_{k}.yade.gz" for k in range(config["dem"]["n_packings"])],
-        summary=f"{OUT}/rve_n{{n}}/summary.json",
+        packings=L.packings(PLAN.n_packings, spheres="{n}"),
+        summary=L.packing_summary(spheres="{n}"),
     params:
-        dem=PACKING_DEFINITION,
+        dem=PLAN.packing_definition,
         pressure=config["specimen"]["confining_pressure"],
         seed=config["seed"],
         n_spheres=lambda wildcards: int(wildcards.n),
     log:
-        f"{OUT}/logs/rve_n{{n}}.log",
+        L.log("rve_n{n}"),
     benchmark:
-        f"{OUT}/benchmarks/rve_n{{n}}.tsv"
+        L.benchmark("rve_n{n}")
     wildcard_constraints:
         n=r"\d+",
 
 
 use rule fem_dem as fem_dem_spheres with:
     input:
-        packings=[f"{OUT}/rve_n{{n}}/packing_{k}.yade.gz" for k in range(config["dem"]["n_packings"])],
+        packings=L.packings(PLAN.n_packings, spheres="{n}"),
     output:
-        f"{OUT}/fem_dem_n{{n}}/{{path}}.h5",
+        L.run("fem_dem_n{n}", "{path}"),
     log:
-        f"{OUT}/logs/fem_dem_n{{n}}/{{path}}.log",
+        L.log("fem_dem_n{n}/{path}"),
     benchmark:
-        f"{OUT}/benchmarks/fem_dem_n{{n}}/{{path}}.tsv"
+        L.benchmark("fem_dem_n{n}/{path}")
     params:
-        checkpoint=f"{OUT}/checkpoints/fem_dem_n{{n}}/{{path}}.ckpt",
-        dem=RUN_DEFINITION,
+        checkpoint=L.checkpoint("fem_dem_n{n}/{path}"),
+        dem=PLAN.run_definition,
         specimen=config["specimen"],
         newton=config["newton"],
         path=lambda wildcards: config["load_paths"][wildcards.path],
         n_spheres=lambda wildcards: int(wildcards.n),
     wildcard_constraints:
         n=r"\d+",
-
-
-if config["reference_material"] == "dem":
-    ALL_TARGETS += [reference_run(p) for p in PATH_NAMES]

@@ -3,23 +3,14 @@
 
 rule fem_elastoplastic:
     output:
-        f"{OUT}/fem_elastoplastic/{{path}}.h5",
+        L.run("fem_elastoplastic", "{path}"),
     log:
-        f"{OUT}/logs/fem_elastoplastic/{{path}}.log",
+        L.log("fem_elastoplastic/{path}"),
     benchmark:
-        f"{OUT}/benchmarks/fem_elastoplastic/{{path}}.tsv"
+        L.benchmark("fem_elastoplastic/{path}")
     params:
         # what the run depends on, so that editing it in the config re-runs the rule
-        model=lambda wc: {
-            "specimen": config["specimen"],
-            "newton": config["newton"],
-            "elastoplastic": config["elastoplastic"],
-            "segments": config["load_paths"][wc.path]["segments"],
-        },
+        model=lambda wc: PLAN.reference_definition(wc.path),
     threads: 1
     script:
         "../../scripts/run_fem_reference.py"
-
-
-if config["reference_material"] == "elastoplastic":
-    ALL_TARGETS += [reference_run(p) for p in PATH_NAMES]

@@ -1,0 +1,121 @@
+"""The workflow's plan without Snakemake: the output layout, the run sets, the labels, the rerun
+triggers and what `all` asks for, at the tiny, default and paper scales."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+from granular_multiscale.config import CONFIG_DIR, merged, read_config_file, validate_config
+from granular_multiscale.plan import NETWORKS, TRAINING_KEYS, Layout, Plan, path_label
+
+PLAN_SOURCE = Path(__file__).resolve().parents[1] / "workflow" / "granular_multiscale" / "plan.py"
+
+
+def plan_of(*configs: str, **settings) -> Plan:
+    """The plan of config files layered as Snakemake layers --configfile, and `settings` on top."""
+    config = {}
+    for name in configs:
+        config = merged(config, read_config_file(CONFIG_DIR / name))
+    return Plan(validate_config(merged(config, {"output_dir": "out", **settings})))
+
+
+def test_layout_puts_every_kind_of_file_in_its_folder():
+    L = Layout("out/")
+    assert L.out == "out"
+    assert L.run("fem_dem", "path2") == "out/fem_dem/path2.h5"
+    assert L.fem_ml("{path}") == "out/fem_ml/{path}.h5"  # wildcards pass through
+    assert L.model("sigma", "active/") == "out/active/models/nn_sigma.pt"
+    assert L.dataset("heldout") == "out/dataset/heldout.h5"
+    assert L.training("sigma_mae.csv", "active/") == "out/active/training/sigma_mae.csv"
+    assert L.adaptive("t0.02", "path2") == "out/adaptive/t0.02/path2.h5"
+    assert L.adaptive_dem_points("t0.01", "path2", "active/") == "out/active/adaptive/t0.01/dem_points/path2.h5"
+    assert L.packings(2, spheres=100) == ["out/rve_n100/packing_0.yade.gz", "out/rve_n100/packing_1.yade.gz"]
+    assert L.packing_summary() == "out/rve/summary.json"
+    assert L.log("fem_dem/path1") == "out/logs/fem_dem/path1.log"
+    assert L.benchmark("surrogate/train_sigma") == "out/benchmarks/surrogate/train_sigma.tsv"
+    assert L.checkpoint("adaptive/t0.02/path2") == "out/checkpoints/adaptive/t0.02/path2.ckpt"
+    assert L.problem_run("biaxial", "fem_dem", "biaxial") == "out/biaxial/fem_dem/biaxial.h5"
+    assert L.vtk("fem_ml", "path2") == "out/vtk/fem_ml/path2"
+
+
+def test_the_default_scale_trains_on_path1_and_rve_paths_and_validates_on_path2():
+    plan = plan_of("config.yaml")
+    assert plan.reference == "fem_dem" and plan.path_names == ["path1", "path2"]
+    assert plan.training_run_paths == ["path1"] and plan.training_rve_sets == ["designed", "long"]
+    assert plan.validation_paths == ["path2"] and plan.ml_paths == ["path2", "path1"]
+    sources, networks = plan.training_rounds()[""]
+    assert sources == ["out/fem_dem/path1.h5", "out/rve_paths/designed.h5", "out/rve_paths/long.h5"]
+    assert networks == NETWORKS
+    active_sources, active_networks = plan.training_rounds()["active/"]
+    assert active_sources[:3] == sources and active_sources[3:] == ["out/adaptive/t0.01/dem_points/path2.h5"]
+    assert list(active_networks) == ["sigma", "tangent"]
+    assert plan.validation_cases() == {"path2": "validation path", "path1": "training path"}
+
+
+def test_labels_and_run_sets_of_the_products():
+    plan = plan_of("config.yaml")
+    assert list(plan.comparison_runs("path2").items()) == [
+        ("FEM–DEM (400 spheres)", "out/fem_dem/path2.h5"), ("FEM–ML (autodiff tangent)", "out/fem_ml/path2.h5"),
+        ("FEM–ML, no history", "out/fem_ml_nohist/path2.h5")]
+    timing = plan.timing_runs("path2")
+    assert timing["FEM–ML (nn tangent)"] == "out/fem_ml_nn/path2.h5"
+    assert timing["FEM–DEM (100 spheres)"] == "out/fem_dem_n100/path2.h5"
+    # adaptive.report: the adaptive runs join, from the highest threshold to the lowest
+    assert list(timing)[-2:] == ["adaptive FEM–DEM–ML, threshold 0.02", "adaptive FEM–DEM–ML, threshold 0.01"]
+    assert plan.speed_curve("path2") == ["FEM–ML (autodiff tangent)", *list(timing)[-2:], "FEM–DEM (400 spheres)"]
+    assert plan.adaptive_run_files() == ["out/adaptive/t0.02/path2.h5", "out/adaptive/t0.01/path2.h5"]
+    elastoplastic = plan_of("config.yaml", reference_material="elastoplastic")
+    assert elastoplastic.reference_run("path2") == "out/fem_elastoplastic/path2.h5"
+    assert elastoplastic.speed_curve("path2") == []  # adaptive runs need DEM
+    assert "FEM–DEM (100 spheres)" not in elastoplastic.timing_runs("path2")
+    assert path_label("path2") == "Path2"
+
+
+def test_rerun_triggers_hold_what_changes_a_result_and_nothing_else():
+    plan = plan_of("config.yaml")
+    other_host = plan_of("config.yaml", dem={"executor": "dask", "n_workers": 7})
+    assert plan.run_definition == other_host.run_definition  # where DEM runs is not what it computes
+    assert "newton" in plan.run_definition and "newton" not in plan.packing_definition
+    assert set(plan.training_settings()) == set(TRAINING_KEYS)
+    segments = plan.fem_ml_definition("path2")["segments"]
+    assert segments == plan.config["load_paths"]["path2"]["segments"]
+    assert plan.adaptive_definition("path2")["dem"] == plan.run_definition
+    variant, settings = next(iter(plan.config["tolerance_study"]["variants"].items()))
+    assert plan.study_dem(variant)["newton"] == {**plan.config["dem"]["newton"], **settings}
+
+
+@pytest.mark.parametrize("configs", [("config.yaml",), ("config.yaml", "tiny.yaml"), ("config.yaml", "paper.yaml")])
+def test_all_asks_for_the_products_of_every_stage_once(configs):
+    plan = plan_of(*configs)
+    targets = plan.all_targets()
+    assert len(targets) == len(set(targets)) and all(t.startswith("out/") for t in targets)
+    L = plan.layout
+    assert {plan.reference_run(p) for p in plan.path_names} <= set(targets)
+    assert {L.fem_ml(p) for p in plan.ml_paths} | {L.model(n) for n in NETWORKS} <= set(targets)
+    assert {L.table("headline.json"), L.figure("speed_vs_error.png"), L.table("validation_by_phase.csv")} <= set(targets)
+    assert (L.figure("adaptive_mode_map.png") in targets) == plan.adaptive_in_report
+    for problem in plan.problems:
+        assert L.figure(f"{problem}/response.png") in targets
+        assert {L.vtk(problem, case) for case in plan.problem_cases[problem]} <= set(targets)
+    assert (L.table("biaxial_bands.csv") in targets) == ("biaxial" in plan.problems)
+
+
+def test_the_biaxial_mesh_study_reuses_the_configured_mesh():
+    plan = plan_of("config.yaml")
+    configured = "x".join(map(str, plan.config["biaxial"]["elements"]))
+    first_case = list(plan.config["biaxial"]["load_paths"])[0]
+    assert plan.biaxial_mesh_run(configured) == plan.problem_run("biaxial", first_case)
+    assert plan.biaxial_mesh_run("1x2") == "out/biaxial_mesh/fem_dem/1x2.h5"
+    assert plan.weak_packing_input("footing") == []
+
+
+def test_the_plan_imports_no_snakemake_and_opens_no_file():
+    tree = ast.parse(PLAN_SOURCE.read_text())
+    imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    imported |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert not any(m.startswith("snakemake") for m in imported)
+    calls = {n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)}
+    assert "open" not in calls

@@ -1,0 +1,381 @@
+"""The workflow's plan, made from a validated config: where every output goes (:class:`Layout`),
+which runs each stage makes (the run sets), what makes a rule run again (its definitions) and
+what the figures and tables call each run (the labels).
+
+The rule files (``workflow/rules/*.smk``) only declare rules from one :class:`Plan`; tests and
+benches take their paths from it too. Nothing here imports Snakemake or reads a result file.
+
+    plan = Plan(validate_config(config))
+    plan.layout.fem_ml("path2")            -> "results/fem_ml/path2.h5"
+    plan.layout.model("sigma", "active/")  -> "results/active/models/nn_sigma.pt"
+    plan.ml_paths, plan.comparison_runs("path2"), plan.all_targets()
+"""
+
+from __future__ import annotations
+
+from .adaptive import threshold_label
+from .paths import load_paths_from_config
+
+# network name -> (what it predicts, whether it reads the history variables)
+NETWORKS = {
+    "sigma": ("sigma", True),
+    "tangent": ("tangent", True),
+    "sigma_nohist": ("sigma", False),
+    "tangent_nohist": ("tangent", False),
+}
+# the keys of `surrogate` that change a trained network (only these re-run the training rules)
+TRAINING_KEYS = [
+    "hidden_layers", "hidden_units", "activation", "batch_size", "learning_rate", "epochs", "ensemble_size",
+    "lr_schedule", "final_learning_rate", "jacobian_loss_weight", "loss", "log_every", "history_variables",
+    "device", "torch_threads",
+]
+# the dem settings that say where a run is computed, not what it computes: changing them reruns nothing
+WHERE_DEM_RUNS = ("executor", "n_workers", "dask_scheduler")
+FIELD_QUANTITIES = ["axial_displacement", "shear_strain", "sigma23"]
+PROBLEM_LABEL = {"biaxial": "Biaxial test (plane strain)", "footing": "Strip footing (plane strain)"}
+ELEMENT_TESTS = {"triaxial": "triaxial compression", "biaxial": "plane strain compression"}
+# the two rounds of the surrogate: the pipeline's networks, and those of one active-learning round
+ACTIVE_ROUNDS = {"first": "", "after one round": "active/"}
+
+
+def path_label(path: str) -> str:
+    """'path2' -> 'Path2', as the paper names its load paths."""
+    return path[:1].upper() + path[1:]
+
+
+class Layout:
+    """Every file the workflow writes under one output directory. Arguments may be Snakemake
+    wildcards such as ``"{path}"``: the methods only put names together."""
+
+    def __init__(self, out: str):
+        self.out = str(out).rstrip("/")
+
+    def _file(self, *parts: str) -> str:
+        return "/".join([self.out, *parts])
+
+    # what every job records beside its outputs
+    def log(self, key: str) -> str:
+        return self._file("logs", f"{key}.log")
+
+    def benchmark(self, key: str) -> str:
+        return self._file("benchmarks", f"{key}.tsv")
+
+    def checkpoint(self, key: str) -> str:
+        """Where a long run checkpoints (not a declared output: a rerun after a kill resumes)."""
+        return self._file("checkpoints", f"{key}.ckpt")
+
+    # RVE packings: rule rve, and at another sphere count (rve_n<n>/)
+    def rve_folder(self, spheres=None) -> str:
+        return "rve" if spheres is None else f"rve_n{spheres}"
+
+    def packings(self, n_packings: int, spheres=None) -> list[str]:
+        return [self._file(self.rve_folder(spheres), f"packing_{k}.yade.gz") for k in range(n_packings)]
+
+    def packing_summary(self, spheres=None) -> str:
+        return self._file(self.rve_folder(spheres), "summary.json")
+
+    def weak_packing(self) -> str:
+        return self._file("rve", "packing_weak.yade.gz")
+
+    def weak_packing_summary(self) -> str:
+        return self._file("rve", "summary_weak.json")
+
+    # runs of the triaxial specimen: one file per method and load path
+    def run(self, method: str, path: str) -> str:
+        """fem_dem, fem_elastoplastic, fem_dem_n<n>, fem_ml, fem_ml_nohist, fem_ml_nn, fem_ml_autodiff."""
+        return self._file(method, f"{path}.h5")
+
+    def fem_ml(self, path: str) -> str:
+        return self.run("fem_ml", path)
+
+    def rve_paths(self, name: str) -> str:
+        return self._file("rve_paths", f"{name}.h5")
+
+    def adaptive(self, label: str, path: str, round: str = "") -> str:
+        return self._file(f"{round}adaptive", label, f"{path}.h5")
+
+    def adaptive_dem_points(self, label: str, path: str, round: str = "") -> str:
+        """The DEM answers of an adaptive run's promoted points (training data of the next round)."""
+        return self._file(f"{round}adaptive", label, "dem_points", f"{path}.h5")
+
+    def tolerance_run(self, variant: str, path: str) -> str:
+        return self._file("tolerance_study", variant, f"{path}.h5")
+
+    # the surrogate, per training round ("" or "active/")
+    def dataset(self, split: str, round: str = "") -> str:
+        return self._file(f"{round}dataset", f"{split}.h5")
+
+    def model(self, network: str, round: str = "") -> str:
+        return self._file(f"{round}models", f"nn_{network}.pt")
+
+    def training(self, name: str, round: str = "") -> str:
+        """<network>.csv (loss per epoch), <network>_mae.csv, <network>_loss.png."""
+        return self._file(f"{round}training", name)
+
+    # the problems beyond the triaxial specimen
+    def problem_run(self, problem: str, method: str, case: str) -> str:
+        return self._file(problem, method, f"{case}.h5")
+
+    def element_test(self, method: str, test: str) -> str:
+        return self._file("element_tests", method, f"{test}.h5")
+
+    def biaxial_mesh_run(self, method: str, mesh: str) -> str:
+        return self._file("biaxial_mesh", method, f"{mesh}.h5")
+
+    # what a reader sees
+    def table(self, name: str) -> str:
+        return self._file("tables", name)
+
+    def figure(self, name: str) -> str:
+        return self._file("figures", name)
+
+    def vtk(self, run: str, path: str) -> str:
+        return self._file("vtk", run, path)
+
+
+class Plan:
+    """What the workflow makes from one validated config."""
+
+    def __init__(self, config: dict):
+        self.config = config
+        self.layout = Layout(config["output_dir"])
+        self.paths = load_paths_from_config(config)
+        self.path_names = list(self.paths)
+        self.reference = "fem_dem" if config["reference_material"] == "dem" else "fem_elastoplastic"
+        dem = config["dem"]
+        self.n_packings = dem["n_packings"]
+        self.packings = self.layout.packings(self.n_packings)
+        # what defines a packing / a FEM–DEM run, not where it runs: a change of these reruns the rule
+        self.packing_definition = {k: v for k, v in dem.items() if k not in (*WHERE_DEM_RUNS, "newton")}
+        self.run_definition = {k: v for k, v in dem.items() if k not in WHERE_DEM_RUNS}
+        self.rve_path_sets = list(config["rve_paths"]["sets"])
+
+        surrogate = config["surrogate"]
+        self.training_path = config["training_path"]
+        self.validation_path = config["validation_path"]
+        # what trains the networks: reference runs of load paths and RVE-path sets ("rve_paths:<set>")
+        self.training_sources = surrogate["training_sources"] or [self.training_path]
+        self.training_run_paths = [s for s in self.training_sources if not s.startswith("rve_paths:")]
+        self.training_rve_sets = [s.split(":", 1)[1] for s in self.training_sources if s.startswith("rve_paths:")]
+        # every load path the training did not use is a validation case; FEM–ML runs every path
+        self.validation_paths = [p for p in self.path_names if p not in self.training_run_paths]
+        self.ml_paths = list(dict.fromkeys([self.validation_path, *self.validation_paths,
+                                            *self.training_run_paths, self.training_path]))
+
+        adaptive = config["adaptive"]
+        self.adaptive_paths = adaptive["paths"] or [self.validation_path]
+        self.adaptive_thresholds = {threshold_label(t): float(t) for t in adaptive["thresholds"]}
+        # one round of active learning: the adaptive runs at its threshold on its paths write the DEM
+        # answers of their promoted points, which join the training sources of a second round
+        active = adaptive["active_learning"]
+        self.active_label = threshold_label(active["threshold"])
+        self.active_paths = active["paths"] or self.adaptive_paths
+        # the thresholds each round runs at: every configured one in the first, the active-learning one in both
+        self.adaptive_round_thresholds = {
+            "": {**self.adaptive_thresholds, self.active_label: float(active["threshold"])},
+            "active/": {self.active_label: float(active["threshold"])},
+        }
+        # adaptive.report: the validation path's runs join the speed figure, the tables and the mode map
+        self.adaptive_in_report = adaptive["report"] and self.reference == "fem_dem"
+
+        tangent = surrogate["tangent"]
+        self.reference_label = (f"FEM–DEM ({dem['n_spheres']} spheres)" if self.reference == "fem_dem"
+                                else "FEM, elastoplastic model (reference)")
+        self.surrogate_label = f"FEM–ML ({tangent} tangent)"
+        self.other_tangent = "autodiff" if tangent == "nn" else "nn"
+        self.ablation_label = "FEM–ML, no history"
+
+        self.problems = list(config["problems"])
+        self.problem_cases = {p: list(config[p]["load_paths"]) for p in self.problems}
+        self.weak_zone = config["biaxial"]["weak_zone"]
+        self.biaxial_meshes = ["x".join(map(str, m)) for m in config["analysis"]["biaxial_meshes"]]
+
+    # ---- training -------------------------------------------------------------------------
+    def reference_run(self, path: str) -> str:
+        """The reference run (FEM–DEM or the elastoplastic model) of a load path."""
+        return self.layout.run(self.reference, path)
+
+    def training_rounds(self) -> dict[str, tuple[list[str], dict]]:
+        """{folder prefix: (training source files, networks)}: the pipeline's networks, and those of
+        the active-learning round (NNσ and ND with history only: what the adaptive runs use)."""
+        L = self.layout
+        sources = [self.reference_run(p) for p in self.training_run_paths]
+        sources += [L.rve_paths(s) for s in self.training_rve_sets]
+        promoted = [L.adaptive_dem_points(self.active_label, p) for p in self.active_paths]
+        return {"": (sources, NETWORKS),
+                "active/": (sources + promoted, {n: NETWORKS[n] for n in ("sigma", "tangent")})}
+
+    def training_settings(self) -> dict:
+        return {k: self.config["surrogate"][k] for k in TRAINING_KEYS}
+
+    # ---- what makes a rule run again --------------------------------------------------------
+    def reference_definition(self, path: str) -> dict:
+        """What an elastoplastic reference run depends on."""
+        c = self.config
+        return {"specimen": c["specimen"], "newton": c["newton"], "elastoplastic": c["elastoplastic"],
+                "segments": c["load_paths"][path]["segments"]}
+
+    def fem_ml_definition(self, path: str) -> dict:
+        """What a FEM–ML run depends on besides the models."""
+        c, s = self.config, self.config["surrogate"]
+        return {"specimen": c["specimen"], "newton": c["newton"], "segments": c["load_paths"][path]["segments"],
+                "surrogate_newton": s["newton"], "anchor_initial_state": s["anchor_initial_state"],
+                "out_of_range_tolerance": s["out_of_range_tolerance"]}
+
+    def adaptive_definition(self, path: str) -> dict:
+        """What an adaptive run depends on besides its inputs."""
+        adaptive = self.config["adaptive"]
+        return {**self.fem_ml_definition(path), "dem": self.run_definition,
+                "adaptive": {k: v for k, v in adaptive.items() if k not in ("thresholds", "paths")},
+                "seed": self.config["seed"]}
+
+    def study_dem(self, variant: str) -> dict:
+        """The dem section of a tolerance-study run: dem.newton with the variant's settings."""
+        study = self.config["tolerance_study"]
+        return {**self.run_definition, "newton": {**self.config["dem"]["newton"], **study["variants"][variant]}}
+
+    def problem_definition(self, problem: str) -> dict:
+        """What a run of `problem` depends on: its section, the confinement, Newton and the material's settings."""
+        c = self.config
+        material = self.run_definition if self.reference == "fem_dem" else c["elastoplastic"]
+        return {"section": c[problem], "pressure": c["specimen"]["confining_pressure"], "newton": c["newton"],
+                "material": material}
+
+    def element_test_overrides(self, test: str) -> dict:
+        """The config of an element test: one RVE under a uniform field along analysis.element_test."""
+        c = self.config
+        path = {"element": {"segments": c["analysis"]["element_test"]}}
+        if test == "triaxial":
+            return {"specimen": {**c["specimen"], "platen": "smooth", "uniform_field": True, "symmetry": "none"},
+                    "load_paths": {**c["load_paths"], **path}}
+        return {"biaxial": {**c["biaxial"], "uniform_field": True, "weak_zone": None, "load_paths": path}}
+
+    # ---- run sets and labels of the products ------------------------------------------------
+    def adaptive_runs(self, path: str) -> dict[str, str]:
+        """{label: run file} of the adaptive runs of a load path, from the highest threshold to the lowest."""
+        ordered = sorted(self.adaptive_thresholds.items(), key=lambda item: -item[1])
+        return {f"adaptive FEM–DEM–ML, threshold {t:g}": self.layout.adaptive(label, path) for label, t in ordered}
+
+    def adaptive_run_files(self) -> list[str]:
+        """Every threshold of adaptive.thresholds on every path of adaptive.paths."""
+        return [self.layout.adaptive(label, p) for label in self.adaptive_thresholds for p in self.adaptive_paths]
+
+    def comparison_runs(self, path: str) -> dict[str, str]:
+        """Ordered {label: run file} of the accuracy products: reference first."""
+        L = self.layout
+        return {self.reference_label: self.reference_run(path), self.surrogate_label: L.fem_ml(path),
+                self.ablation_label: L.run("fem_ml_nohist", path)}
+
+    def timing_runs(self, path: str) -> dict[str, str]:
+        """The comparison runs, FEM–ML with the other tangent (the surrogate stage runs both on the
+        validation path), and FEM–DEM at the other configured sphere counts (DEM reference only)."""
+        runs = self.comparison_runs(path)
+        ablation = runs.pop(self.ablation_label)
+        runs[f"FEM–ML ({self.other_tangent} tangent)"] = self.layout.run(f"fem_ml_{self.other_tangent}", path)
+        runs[self.ablation_label] = ablation
+        if self.reference == "fem_dem":
+            for n in self.config["analysis"]["fem_dem_sphere_counts"]:
+                if n != self.config["dem"]["n_spheres"]:
+                    runs[f"FEM–DEM ({n} spheres)"] = self.layout.run(f"fem_dem_n{n}", path)
+        if self.adaptive_in_report:
+            runs.update(self.adaptive_runs(path))
+        return runs
+
+    def speed_curve(self, path: str) -> list[str]:
+        """Labels the speed-vs-error figure joins by a line: FEM–ML, the adaptive runs, the reference."""
+        if not self.adaptive_in_report:
+            return []
+        return [self.surrogate_label, *self.adaptive_runs(path), self.reference_label]
+
+    def validation_cases(self) -> dict[str, str]:
+        """Every validation path (the training did not use it), then the training run paths (in-sample)."""
+        return {**{p: "validation path" for p in self.validation_paths},
+                **{p: "training path" for p in self.training_run_paths if p not in self.validation_paths}}
+
+    def training_curves(self) -> dict[str, str]:
+        L = self.layout
+        return {"NNσ|with history": L.training("sigma.csv"), "ND|with history": L.training("tangent.csv"),
+                "NNσ|no history": L.training("sigma_nohist.csv"), "ND|no history": L.training("tangent_nohist.csv")}
+
+    def stress_strain_names(self) -> list[str]:
+        analysis = self.config["analysis"]
+        explicit = analysis["stress_strain_gauss_points"]
+        return [f"gp{g}" for g in explicit] if explicit else list(analysis["stress_strain_points"])
+
+    def vtk_runs(self) -> dict:
+        """{run name: load path -> run file} of the VTK exports."""
+        return {"reference": self.reference_run, "fem_ml": self.layout.fem_ml}
+
+    def metrics_tables(self) -> dict[str, str]:
+        L = self.layout
+        return {"stress_error_by_gp": L.table("fem_ml_stress_error_by_gp.csv"),
+                "stress_error": L.table("fem_ml_stress_error.csv"),
+                "curve_errors": L.table("fem_ml_curve_errors.csv"),
+                "newton_iterations": L.table("fem_ml_newton_iterations.csv"),
+                "out_of_range": L.table("fem_ml_out_of_range.csv"),
+                "training_mae": L.table("surrogate_training_mae.csv")}
+
+    def surrogate_cost_items(self) -> list[tuple[str, str, str]]:
+        """(what, how to read it, file) of each step that makes the surrogate the FEM–ML runs use:
+        the RVE packings (DEM), every training source (the reference runs of the training paths, the
+        RVE-path sets), the dataset and the two networks of rule fem_ml (the no-history ablation is
+        not part of the answer)."""
+        L = self.layout
+        reference = "FEM–DEM" if self.reference == "fem_dem" else "elastoplastic model (stands in for FEM–DEM)"
+        items = []
+        if self.reference == "fem_dem":
+            items.append(("RVE preparation (YADE packings)", "rve_summary", L.packing_summary()))
+        items += [(f"reference run of {path_label(path)}, {reference} (training data)", "run",
+                   self.reference_run(path)) for path in self.training_run_paths]
+        items += [(f"RVE paths '{name}' (rule rve_paths, training data)", "benchmark",
+                   L.benchmark(f"rve_paths/{name}")) for name in self.training_rve_sets]
+        items += [("dataset (rule dataset)", "benchmark", L.benchmark("surrogate/dataset")),
+                  ("training NNσ (rule train_sigma)", "benchmark", L.benchmark("surrogate/train_sigma")),
+                  ("training ND (rule train_tangent)", "benchmark", L.benchmark("surrogate/train_tangent"))]
+        return items
+
+    def problem_run(self, problem: str, case: str) -> str:
+        return self.layout.problem_run(problem, self.reference, case)
+
+    def weak_packing_input(self, problem: str) -> list[str]:
+        """The weak packing, for a problem whose config has a weak zone (the biaxial test)."""
+        return [self.layout.weak_packing()] if problem == "biaxial" and self.weak_zone is not None else []
+
+    def element_runs(self) -> dict[str, str]:
+        return {label: self.layout.element_test(self.reference, t) for t, label in ELEMENT_TESTS.items()}
+
+    def biaxial_mesh_run(self, mesh: str) -> str:
+        """The biaxial run of a mesh of the study: the problem's own run at its configured mesh."""
+        biaxial = self.config["biaxial"]
+        if [int(v) for v in mesh.split("x")] == list(biaxial["elements"]):
+            return self.problem_run("biaxial", list(biaxial["load_paths"])[0])
+        return self.layout.biaxial_mesh_run(self.reference, mesh)
+
+    # ---- what `all` makes -------------------------------------------------------------------
+    def all_targets(self) -> list[str]:
+        L = self.layout
+        targets = [self.reference_run(p) for p in self.path_names]
+        targets += [L.model(n) for n in NETWORKS] + [L.training(f"{n}.csv") for n in NETWORKS]
+        targets += [L.fem_ml(p) for p in self.ml_paths] + [L.run("fem_ml_nohist", p) for p in self.ml_paths]
+        targets += list(self.metrics_tables().values())
+        v = self.validation_path
+        targets += [L.figure("error_map.png"), *[L.figure(f"stress_strain_{n}.png") for n in self.stress_strain_names()],
+                    L.figure("top_force_volumetric_strain.png"),
+                    *[L.figure(f"fields_{q}.png") for q in FIELD_QUANTITIES],
+                    *[L.vtk(run, v) for run in self.vtk_runs()], L.figure("training_curves.png"),
+                    L.table("speedup.csv"), L.table("accuracy.csv"), L.table("surrogate_cost.csv"),
+                    L.figure("speed_vs_error.png"), L.table("headline.json"), L.table("validation_by_phase.csv")]
+        if self.adaptive_in_report:
+            targets.append(L.figure("adaptive_mode_map.png"))
+        targets += [L.figure("calibration.png"), L.table("calibration.csv"), L.table("calibration.html")]
+        if self.problems:
+            targets.append(L.table("rve_angles.csv"))
+        for p in self.problems:
+            targets.append(L.figure(f"{p}/response.png"))
+            targets += [L.figure(f"{p}/fields_{c}.png") for c in self.problem_cases[p]]
+            targets += [L.vtk(p, c) for c in self.problem_cases[p]]
+        if "biaxial" in self.problems:
+            targets.append(L.table("biaxial_bands.csv"))
+        if "footing" in self.problems:
+            targets.append(L.table("footing.csv"))
+        return targets
