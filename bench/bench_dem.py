@@ -32,12 +32,11 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "workflow"))
 
-from granular_multiscale.config import load_config  # noqa: E402
-from granular_multiscale.dem.material import DemMaterialPointSet  # noqa: E402
-from granular_multiscale.dem.rve import RVESpec, prepare_packing  # noqa: E402
-from granular_multiscale.dem.yade_env import child_env  # noqa: E402
+from granular_multiscale.config import load_config
+from granular_multiscale.dem.material import DemMaterialPointSet
+from granular_multiscale.dem.rve import RVESpec, prepare_packing
+from granular_multiscale.dem.yade_env import child_env
 
 SETTINGS_KEYS = ("strain_rate", "min_steps", "max_steps", "damping")
 INCREMENT = np.array([3.0e-4, 3.0e-4, -1.05e-3, 0.0, 0.0, 0.0])

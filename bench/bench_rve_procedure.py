@@ -46,10 +46,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "workflow"))
 
-from granular_multiscale.studies.uniform_fem_dem import run_fem_dem_uniform  # noqa: E402
-from granular_multiscale.studies.direct_triaxial import (  # noqa: E402
+from granular_multiscale.studies.uniform_fem_dem import run_fem_dem_uniform
+from granular_multiscale.studies.direct_triaxial import (
     REPORT_AT,
     DirectSpec,
     at_strains,
@@ -58,7 +57,7 @@ from granular_multiscale.studies.direct_triaxial import (  # noqa: E402
     peak,
     run_direct,
 )
-from granular_multiscale.dem.rve import RVESpec, prepare_packing  # noqa: E402
+from granular_multiscale.dem.rve import RVESpec, prepare_packing
 
 P0 = 1.0e5
 

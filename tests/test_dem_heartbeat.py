@@ -22,7 +22,7 @@ from granular_multiscale.dem.executors import HEARTBEAT_INTERVAL
 from granular_multiscale.dem.material import DemMaterialPointSet
 from granular_multiscale.dem.worker import steps_for_increment
 
-pytestmark = pytest.mark.slow  # runs YADE
+pytestmark = [pytest.mark.slow, pytest.mark.needs_yade]  # runs YADE
 
 # ~2 s of stepping for the busier host on this machine kind (100 spheres, ~80 µs per step)
 LONG = dict(SETTINGS, min_steps=20000)

@@ -13,7 +13,7 @@ from granular_multiscale.materials.base import MaterialPointError
 from granular_multiscale.tensors import engineering
 
 P0 = 1.0e5
-pytestmark = pytest.mark.slow  # every test here runs YADE
+pytestmark = [pytest.mark.slow, pytest.mark.needs_yade]  # every test here runs YADE
 
 
 def _material(path, n_points=1, n_workers=1, settings=None, **kw) -> DemMaterialPointSet:
@@ -70,7 +70,7 @@ def test_tangent_of_the_frictional_rve_is_a_lower_bound(tmp_path_factory):
     YADE's tangent counts k_t only along a contact's current shear force, and right after the
     frictionless consolidation no contact has one: the RVE is stiffer than D predicts. Recorded
     here so nobody mistakes it for a convention error: the response still points the way D says
-    (cosine > 0.9) and is 1–2.5 × as large (this packing: ≈ 1.2× along normal, ≈ 1.35× along
+    (cosine > 0.9) and is 1.1–1.6 × as large (this packing: ≈ 1.2× along normal, ≈ 1.35× along
     shear directions; the frictionless check above agrees within 2 %)."""
     path, _ = packing(tmp_path_factory)
     with _material(path, n_points=7, settings=ONE_STEP) as m:
@@ -80,7 +80,7 @@ def test_tangent_of_the_frictional_rve_is_a_lower_bound(tmp_path_factory):
         predicted = D @ engineering(de[j])
         ratio = ds[j] @ predicted / (predicted @ predicted)
         cosine = ds[j] @ predicted / np.linalg.norm(ds[j]) / np.linalg.norm(predicted)
-        assert 1.0 <= ratio <= 2.5 and cosine > 0.9, (j, ratio, cosine)
+        assert 1.1 <= ratio <= 1.6 and cosine > 0.9, (j, ratio, cosine)
 
 
 def test_signs_initial_state_and_response(tmp_path_factory):

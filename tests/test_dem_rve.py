@@ -23,6 +23,7 @@ def _yade(code: str, timeout: float = 300) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.needs_yade
 def test_yade_steps_a_periodic_packing_in_the_venv():
     """YADE imports in this venv, steps a small periodic packing, and reads its stress."""
     result = _yade("""
@@ -61,6 +62,7 @@ def test_spec_from_config_and_geometry():
         RVESpec(diameter_min=0.01, diameter_max=0.002).check()
 
 
+@pytest.mark.needs_yade
 @pytest.mark.slow
 def test_consolidated_packing_is_isotropic_dense_and_frictional_again(tmp_path_factory):
     path, summary = packing(tmp_path_factory)
@@ -100,6 +102,7 @@ print(json.dumps({{"mat": [math.tan(m.frictionAngle) for m in O.materials], "con
     assert state["law"] == "Law2_ScGeom_MindlinPhys_Mindlin" and state["phys"] == "Ip2_FrictMat_FrictMat_MindlinPhys"
 
 
+@pytest.mark.needs_yade
 @pytest.mark.slow
 def test_preparation_is_seeded(tmp_path_factory):
     """Same seed, same packing bits; another seed, another packing."""

@@ -4,6 +4,7 @@ import logging
 
 import numpy as np
 import pytest
+from conftest import KilledAfterCommits
 
 from granular_multiscale.fem.newton import ConvergenceError, NewtonSettings
 from granular_multiscale.fem.triaxial import TriaxialProblem
@@ -119,18 +120,8 @@ def test_step_that_never_converges_names_the_load_step():
         problem.run(material, path, progress=False)
 
 
-class KilledAfter(Elastoplastic):
-    """Simulates a killed run: raises once `commits` commits have happened."""
-
-    def __init__(self, *args, commits, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.commits_left = commits
-
-    def commit(self, strain=None):
-        if self.commits_left == 0:
-            raise KeyboardInterrupt("simulated kill")
-        self.commits_left -= 1
-        super().commit(strain)
+class KilledAfter(KilledAfterCommits, Elastoplastic):
+    pass
 
 
 def test_checkpoint_resume_gives_the_uninterrupted_result(tmp_path, caplog):

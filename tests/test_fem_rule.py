@@ -1,4 +1,4 @@
-"""The reference rule end to end: the exact snakemake command of the README/issue at the tiny scale."""
+"""The reference rule end to end: the exact snakemake command of the README at the tiny scale."""
 
 import subprocess
 import sys

@@ -56,7 +56,7 @@ def test_reversal_with_2x_and_4x_increments_converges_within_0p1_percent_of_the_
         print(f"{path.name}, max_iterations {max_iterations}: {f.size} common strains, max deviation "
               f"{deviation:.1e} of the peak force, cutbacks {int(cut.sum())} at steps {np.flatnonzero(cut).tolist()}, "
               f"iterations at the reversals {coarse.newton_iterations.values[[9, 10, 11]].tolist()}")
-        assert deviation < 1e-3
+        assert deviation < 1.3e-4  # measured 4.6e-5 (2x) and 8.6e-5 (4x)
         assert np.isfinite(coarse.stress.values).all()
         if max_iterations == 25:
             assert cut.sum() == 0  # the consistent tangent needs no cutback even for these steps

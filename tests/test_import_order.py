@@ -69,6 +69,7 @@ def _ok(code: str, tmp_path) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.needs_yade
 @pytest.mark.parametrize("vtk_import", ["import vtk", "import pyvista"])
 def test_pinned_upstream_bug_plain_yade_then_vtk_segfaults(vtk_import, tmp_path):
     """PINS THE UPSTREAM BUG (Debian YADE 2023.02a + pip vtk 9.7): plain ``import yade`` then
@@ -80,12 +81,14 @@ def test_pinned_upstream_bug_plain_yade_then_vtk_segfaults(vtk_import, tmp_path)
     assert "survived" not in out.stdout
 
 
+@pytest.mark.needs_yade
 def test_all_of_vtk_then_yade_works(tmp_path):
     """The safe order: all of VTK first, then YADE steps and pyvista still renders."""
     result = _ok("import vtk\nimport yade\n" + YADE_STEP + FIELDS_USE + PRINT, tmp_path)
     assert result["yade"] and result["volume"] == pytest.approx(2.0)
 
 
+@pytest.mark.needs_yade
 def test_pyvista_then_import_yade_loads_the_rest_of_vtk_first(tmp_path):
     """pyvista loads only part of VTK; import_yade loads the rest before YADE, so plain pyvista
     rendering afterwards (which loads VTK's OpenGL modules) works. Without it this aborts."""
@@ -107,6 +110,7 @@ print(json.dumps({"shape": list(image.shape)}))
     assert result["shape"] == [64, 64, 3]
 
 
+@pytest.mark.needs_yade
 def test_fields_after_yade_renders_like_without_yade(tmp_path):
     """YADE first, then the project's fields module (the bad order, made safe by loading VTK
     with RTLD_DEEPBIND): the rendering and the VTU file are bit-identical to those of a
@@ -118,6 +122,7 @@ def test_fields_after_yade_renders_like_without_yade(tmp_path):
     assert with_yade == {**alone, "yade": True}
 
 
+@pytest.mark.needs_yade
 def test_vtk_loaded_after_yade_elsewhere_gives_a_clear_error(tmp_path):
     """A VTK module imported after YADE without the guard is bound to YADE's VTK for good;
     the fields module then refuses with an ImportError that states the rule."""

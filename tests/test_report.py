@@ -4,15 +4,18 @@ YADE RVEs, then the HTML report: Snakemake must build every figure and table fro
 self-contained file. A FEM–ML run that stops early (it may on the tiny scale's noisy 150-sphere
 DEM data) must still reach the report, labelled as such."""
 
+import base64
 import json
 import re
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from PIL import Image
 
 from granular_multiscale.data import read_run
 
@@ -83,29 +86,38 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
         snakemake("--report", str(report), *config_args, "--", "all", "tolerance_study")
     again = snakemake("-n", "-j2", *config_args, "--", *targets)
     assert "Nothing to be done" in again.stdout + again.stderr, (again.stdout + again.stderr)[-3000:]
-    for name in FIGURES:
-        assert (out / "figures" / name).stat().st_size > 10_000, name
-    for name in TABLES:
-        assert (out / "tables" / name).is_file(), name
+    for name in FIGURES:  # a drawn figure, not an empty canvas
+        image = np.asarray(Image.open(out / "figures" / name).convert("L"), dtype=float)
+        assert min(image.shape) > 300 and image.std() > 10 and np.mean(image < 240) > 0.02, name
+    for name in TABLES:  # every table has rows of finite numbers
+        path = out / "tables" / name
+        if path.suffix == ".html":
+            assert path.read_text().count("<td") >= 2, name
+            continue
+        table = pd.read_csv(path)
+        # NaN may mark what a tiny run leaves undefined (a ratio to an ensemble spread of zero),
+        # never a whole table, and nothing is infinite
+        numbers = table.select_dtypes("number")
+        assert len(table) > 0 and numbers.notna().sum().sum() > 0.5 * numbers.size, name
+        assert not np.isinf(numbers.to_numpy(dtype=float)).any(), name
 
     reference_dir = "fem_dem" if reference == "dem" else "fem_elastoplastic"
     reference_run = read_run(out / reference_dir / "path2.h5")
     fem_ml = read_run(out / "fem_ml" / "path2.h5")
     n_ref, n_ml = reference_run.sizes["step"], fem_ml.sizes["step"]
-    completed = bool(fem_ml.attrs["completed"])
     assert n_ref == 58  # step 0 and the 57 load steps of path2
-    if completed:
-        assert n_ml == n_ref and "stopped_at_step" not in fem_ml.attrs
-    else:  # kept the converged steps 0..k-1 of a run that stopped at step k
-        assert fem_ml.attrs["stopped_at_step"] == n_ml and 1 < n_ml < n_ref
+    # a FEM–ML run that stops fails its rule (surrogate.keep_partial_runs is false): this one went to the end
+    assert fem_ml.attrs["completed"] == 1 and n_ml == n_ref and "stopped_at_step" not in fem_ml.attrs
     vtk = out / "vtk" / "fem_ml" / "path2"
     assert (vtk / "path2.pvd").is_file() and len(list(vtk.glob("path2_*.vtu"))) == n_ml
 
     html = report.read_text()
-    assert report.stat().st_size > 500_000  # the PNGs are embedded, not linked
     for name in FIGURES + TABLES:
         assert f'"name": "{name}"' in html, f"{name} missing from the report"
-    assert html.count("data:image/png") >= len(FIGURES)
+    # the PNGs are embedded, not linked: each figure's bytes are in the page
+    embedded = set(re.findall(r"data:image/png;[^,\"]*base64,([A-Za-z0-9+/=]+)", html))
+    for name in FIGURES:
+        assert base64.b64encode((out / "figures" / name).read_bytes()).decode() in embedded, name
     # every result has its caption, every category shows up
     results = json.loads(re.search(r"var results = (\{.*?\});\n", html).group(1))
     for path, entry in results.items():
@@ -134,10 +146,9 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     else:
         assert "YADE RVEs of 150 spheres" in description and "Analytic" not in description
         assert (out / "fem_dem" / "path1.h5").is_file() and (out / "rve" / "summary.json").is_file()
-    assert headline["surrogate_completed"] is completed
+    assert headline["surrogate_completed"] is True
     assert headline["surrogate_load_steps"] == n_ml - 1 and headline["reference_load_steps"] == n_ref - 1
-    stop = f"stopped after load step {n_ml - 1} of {n_ref - 1}"
-    assert (stop in description) is not completed
+    assert "stopped after load step" not in description
 
     # what ran: the full 1×1×2 mesh, one material point per Gauss point
     speed = pd.read_csv(out / "tables" / "speedup.csv")

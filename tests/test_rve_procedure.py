@@ -22,6 +22,7 @@ from granular_multiscale.studies.direct_triaxial import (
     run_direct,
 )
 
+pytestmark = pytest.mark.needs_yade  # one RVE, direct and through the FEM solver
 P0 = 1.0e5
 SEEDS = (0, 1)
 END = 0.03
@@ -77,27 +78,27 @@ def test_the_step_at_rest_between_increments_does_not_change_the_response(runs):
 def test_fem_dem_agrees_with_the_direct_test_of_the_same_boundary_conditions(runs):
     """FEM–DEM (uniform field, smooth platens: σ11 = σ22 = −p, no shear traction) against the
     continuous direct test with the same conditions (servo on σ11, σ22 and the shear stresses):
-    q within 1.5 % of the peak (measured ≤ 0.55 %) and εv within 0.03 % (measured ≤ 0.013 %)
+    q within 0.85 % of the peak (measured ≤ 0.55 %) and εv within 0.02 % (measured ≤ 0.013 %)
     at every 0.1 % up to 3 %. The servo holds its stresses within 0.5 % of p."""
     for seed, r in runs.items():
         fd, direct = r["fem_dem"], r["direct_free"]
         assert direct["servo_error_max"] < 5e-3, seed
         a, b = at_strains(fd, POINTS), at_strains(direct, POINTS)
         q_peak = peak(fd)[1]
-        assert np.abs(np.subtract(a["q"], b["q"])).max() <= 0.015 * q_peak, seed
-        assert np.abs(np.subtract(a["volumetric_strain"], b["volumetric_strain"])).max() <= 3e-4, seed
+        assert np.abs(np.subtract(a["q"], b["q"])).max() <= 0.0085 * q_peak, seed
+        assert np.abs(np.subtract(a["volumetric_strain"], b["volumetric_strain"])).max() <= 2e-4, seed
 
 
 @pytest.mark.slow
 def test_zero_shear_strain_is_another_boundary_condition(runs):
     """A periodic triaxial test that keeps the shear strains zero (the usual direct test) agrees
-    with FEM–DEM before the peak, within 3 % of the peak q up to 2 % axial strain (measured
+    with FEM–DEM before the peak, within 2.5 % of the peak q up to 2 % axial strain (measured
     ≤ 1.7 %); nearer the peak a 100-sphere RVE that may not shear is stronger (measured: up to
     2.8 % of the peak at 3 %). The FEM–DEM RVE does shear: its shear strains reach 1.8e-3 and 3.5e-3."""
     for seed, r in runs.items():
         fd, fixed = r["fem_dem"], r["direct_fixed"]
         pre = POINTS[POINTS <= 0.02]
         a, b = at_strains(fd, pre), at_strains(fixed, pre)
-        assert np.abs(np.subtract(a["q"], b["q"])).max() <= 0.03 * peak(fd)[1], seed
+        assert np.abs(np.subtract(a["q"], b["q"])).max() <= 0.025 * peak(fd)[1], seed
         assert np.abs(np.asarray(fixed["records"][-1]["strain"])[3:]).max() < 1e-12, seed  # it did not shear
         assert np.abs(np.asarray(fd["strain"])[-1, 3:]).max() > 5e-4, seed

@@ -135,10 +135,10 @@ def test_fem_ml_runs_and_metrics(tiny_chain):
     # histories and 6 RVE paths: largest top-force error 6.06 % (fem_ml, path1), 6.43 % (fem_ml, path2),
     # 3.38 / 2.74 % (fem_ml_nohist). (Formerly, when the "held-out" points were mirror images of training
     # points and both histories trained: 3.33 / 3.38 / 3.22 / 3.07 %.) Either way, 25 % would let
-    # almost anything pass; the bound catches a real regression
-    for run in ("fem_ml", "fem_ml_nohist"):
+    # almost anything pass; the bounds (about 1.3x the measured) catch a real regression
+    for run, bound in (("fem_ml", 8.0), ("fem_ml_nohist", 4.5)):
         for path in ("path1", "path2"):
-            assert force.loc[(run, path), "max_error_percent_of_peak"] < 8.0, (run, path)
+            assert force.loc[(run, path), "max_error_percent_of_peak"] < bound, (run, path)
     newton = pd.read_csv(out / "tables/fem_ml_newton_iterations.csv")
     assert {"iterations_nn", "iterations_autodiff", "iterations_reference"} <= set(newton.columns)
     assert len(newton) == reference.sizes["step"]

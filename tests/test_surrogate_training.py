@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import torch
+from PIL import Image
 
 from granular_multiscale.analysis.figures import plot_losses
 from granular_multiscale.config import CONFIG_DIR, load_config, validate_config
@@ -225,7 +226,9 @@ def test_bad_settings_are_named(data):
 def test_loss_figure(data, tmp_path):
     _, losses, _ = train(*data, "sigma", FAST, seed=0)
     plot_losses({"NNσ": losses}, tmp_path / "loss.png")
-    assert (tmp_path / "loss.png").stat().st_size > 5000
+    image = np.asarray(Image.open(tmp_path / "loss.png").convert("L"), dtype=float)
+    assert image.shape == (480, 720)  # one 6 x 4 inch panel at 120 dpi
+    assert image.std() > 10 and np.mean(image < 240) > 0.02  # drawn, not an empty canvas
 
 
 def test_roundoff_columns_are_constant_in_the_scaling():

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from conftest import KilledAfterCommits
 
 from granular_multiscale.analysis import calibration
 from granular_multiscale.config import validate_config
@@ -128,18 +129,8 @@ def test_spread_written_and_read_back(runs, tmp_path):
     assert back.attrs["ensemble_size"] == 2 and back.stress_spread_relative.attrs["floor_Pa"] == spread_floor(1e5)
 
 
-class KilledAfter(SurrogateMaterial):
-    """Simulates a killed run: raises once `commits` commits have happened."""
-
-    def __init__(self, *args, commits, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.commits_left = commits
-
-    def commit(self, strain=None):
-        if self.commits_left == 0:
-            raise KeyboardInterrupt("simulated kill")
-        self.commits_left -= 1
-        super().commit(strain)
+class KilledAfter(KilledAfterCommits, SurrogateMaterial):
+    pass
 
 
 def test_spread_survives_checkpoint_and_resume(runs, models, tmp_path, caplog):

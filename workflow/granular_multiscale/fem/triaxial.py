@@ -28,7 +28,7 @@ the two outer lateral faces; with smooth platens these conditions already remove
 rigid-body motions (no pins). ``top_force`` is reported for the FULL specimen (4 × the
 quarter's reaction), and ``volumetric_strain`` is the quarter's, which equals the full
 specimen's for a symmetric field. Valid when the specimen, its material and its loading
-are symmetric about both planes (README, "Quarter symmetry").
+are symmetric about both planes (docs/method.md, "Quarter symmetry").
 
 Uniform field (``specimen.uniform_field: true``, smooth platens only): the run takes a
 material set of ONE point (:attr:`TriaxialProblem.n_material_points`) and broadcasts its
