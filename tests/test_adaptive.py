@@ -483,7 +483,8 @@ def test_kernel_correction_carries_the_dem_points_residual(setup, fem_ml_run, fe
         assert run.attrs["adaptive_correction"] == "kernel" and run.attrs["adaptive_correction_length"] == key[1]
         assert np.array_equal(run.point_mode.values, plain.point_mode.values)  # the same 4 anchors, nothing promoted
         assert run.correction.values[1:].min() > 0.0
-        assert errors[key] < 0.5 * errors["none", 0.05]
+        # measured 17.95 -> 1.06 % (length 0.05) and 2.08 % (infinite length): 0.06x and 0.12x
+        assert errors[key] < 0.18 * errors["none", 0.05]
     section = {**config["adaptive"], "correction": "kernel"}
     alone = run_adaptive({**config, "adaptive": section}, "p", np.inf, packings, sigma, None, "autodiff", n_workers=2)
     assert_same(alone, fem_ml_run)

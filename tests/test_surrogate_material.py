@@ -214,11 +214,18 @@ def test_ensemble_autodiff_tangent_matches_finite_differences(data):
     np.testing.assert_allclose(D, fd, atol=1e-6 * np.abs(fd).max())
 
 
-def test_autodiff_tangent_finite_at_fresh_state(models):
+def test_autodiff_tangent_at_fresh_state(models):
+    """At Δε_acc = 0, the kinks of |·| and of the norm in φ, the tangent is finite and is the
+    central difference there: a step ±h changes |Δε| alike both ways, so the history terms
+    cancel, as autodiff's subgradient 0 of |·| and of the norm says."""
     sigma, _ = models
     mat = SurrogateMaterial(4, sigma, tangent="autodiff")
-    stress, D = mat.evaluate(np.zeros((4, 6)))  # Δε_acc = 0: the kinks of |·| and sqrt
+    fresh = np.zeros((4, 6))
+    stress, D = mat.evaluate(fresh)
     assert np.isfinite(D).all() and np.isfinite(stress).all()
+    fd = finite_difference_tangent(mat, fresh)
+    assert np.abs(D).max() > 0
+    np.testing.assert_allclose(D, fd, atol=1e-6 * np.abs(fd).max())
 
 
 def test_autodiff_without_history_matches_finite_differences(data):
