@@ -27,11 +27,12 @@ import numpy as np
 import pandas as pd
 
 from granular_multiscale.analysis.bands import band_metrics
-from granular_multiscale.analysis.tables import bench_record
 from granular_multiscale.config import CONFIG_DIR, load_config
 from granular_multiscale.dem.rve import RVESpec, prepare_packing
 from granular_multiscale.drivers.fem_dem import run_fem_dem
 from granular_multiscale.fem.newton import ConvergenceError
+
+from common import Measurement
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -78,6 +79,8 @@ def main(argv=None) -> None:
     path = list(config["biaxial"]["load_paths"])[0]
     if args.segments is not None:
         config["biaxial"]["load_paths"][path]["segments"] = args.segments
+    measurement = Measurement("biaxial_tolerance", {"config": str(args.config), "spheres": args.spheres,
+                                                    "biaxial": config["biaxial"]})
     packings = {}
     for name, friction in (("strong", config["dem"]["friction"]), ("weak", config["biaxial"]["weak_zone"]["dem_friction"])):
         packings[name] = work / f"packing_{args.spheres}_{name}.yade.gz"
@@ -97,9 +100,7 @@ def main(argv=None) -> None:
             failed.append({"tolerance": tol, "wall_s": time.perf_counter() - t0, "error": str(error)[:500]})
         rows = (compare(runs) if runs else []) + failed
         print(pd.DataFrame(rows).drop(columns="error", errors="ignore").to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-        payload = bench_record("biaxial_tolerance", {"config": str(args.config), "spheres": args.spheres,
-                                                     "biaxial": config["biaxial"]}, rows, ROOT)
-        args.out.write_text(json.dumps(payload, indent=1, default=float))
+        measurement.finish(rows, args.out)  # after every tolerance: a stopped bench keeps what it measured
     print(f"wrote {args.out}")
 
 

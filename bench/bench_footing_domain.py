@@ -14,17 +14,17 @@ does.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import time
 from pathlib import Path
 
 import pandas as pd
 
-from granular_multiscale.analysis.tables import bench_record
 from granular_multiscale.config import load_config
 from granular_multiscale.drivers.reference import run_fem_reference
 from granular_multiscale.materials.elastoplastic import SOFTENING
+
+from common import Measurement
 
 ROOT = Path(__file__).resolve().parents[1]
 # (domain [half width, depth] in m, elements [x, z]): the default first
@@ -53,6 +53,7 @@ def main(argv=None) -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "footing_domain.json")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
+    measurement = Measurement("footing_domain", {"softening": SOFTENING, "path": PATH})
     args.out.parent.mkdir(parents=True, exist_ok=True)
     runs_dir = args.out.parent / "footing_domain_runs"
     runs_dir.mkdir(exist_ok=True)
@@ -63,8 +64,7 @@ def main(argv=None) -> None:
             row["pressure_10pct_over_default"] = row["pressure_10pct_kPa"] / block[0]["pressure_10pct_kPa"]
         rows += block
     print(pd.DataFrame(rows).to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-    payload = bench_record("footing_domain", {"softening": SOFTENING, "path": PATH}, rows, ROOT)
-    args.out.write_text(json.dumps(payload, indent=1))
+    measurement.finish(rows, args.out)
     print(f"wrote {args.out}")
 
 

@@ -14,7 +14,6 @@ rows of one element against each other show the mesh dependence of the post-peak
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import time
 from pathlib import Path
@@ -23,10 +22,11 @@ import numpy as np
 import pandas as pd
 
 from granular_multiscale.analysis.bands import band_metrics
-from granular_multiscale.analysis.tables import bench_record
 from granular_multiscale.config import load_config
 from granular_multiscale.drivers.reference import run_fem_reference
 from granular_multiscale.materials.elastoplastic import SOFTENING
+
+from common import Measurement
 
 ROOT = Path(__file__).resolve().parents[1]
 MESHES = [(3, 6), (4, 8), (6, 12), (8, 16)]
@@ -61,13 +61,13 @@ def main(argv=None) -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "plane_elements.json")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
+    measurement = Measurement("plane_elements", {"material": SOFTENING, "weak_zone": WEAK_ZONE})
     args.out.parent.mkdir(parents=True, exist_ok=True)
     runs_dir = args.out.parent / "plane_elements_runs"
     rows = [run(element, mesh, runs_dir) for element in ELEMENTS for mesh in MESHES]
     table = pd.DataFrame(rows)
     print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-    payload = bench_record("plane_elements", {"material": SOFTENING, "weak_zone": WEAK_ZONE}, rows, ROOT)
-    args.out.write_text(json.dumps(payload, indent=1))
+    measurement.finish(rows, args.out)
     print(f"wrote {args.out}")
 
 

@@ -32,8 +32,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from granular_multiscale.analysis.tables import bench_record
 from granular_multiscale.data import read_run
+
+from common import Measurement
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -284,6 +285,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="fault_tour."))
     tour = Tour(work)
+    measurement = Measurement("fault_tour")
     started = time.time()
     try:
         config_faults(tour)
@@ -296,8 +298,7 @@ def main(argv=None):
             equal = {True: "yes", False: "NO", None: "–"}[row["rerun_equals_clean"]]
             print(f"| {i} | {row['fault']} | {row['exit']} | {row['message'].replace('|', '/')} | {equal} "
                   f"{row['note']} |")
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps(bench_record("fault_tour", {}, tour.rows, ROOT), indent=1))
+        measurement.finish(tour.rows, args.out)
         shutil.rmtree(work, ignore_errors=True)
 
 

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import os
 import platform
-import subprocess
-import time
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -209,14 +207,6 @@ def machine_description() -> dict:
     except AttributeError:
         cores = os.cpu_count()
     return {"cores": cores, "cpu": model, "memory_gib": memory_gib, "system": f"{platform.system()} {platform.release()}"}
-
-
-def bench_record(bench: str, settings: dict, rows: list, repository: Path) -> dict:
-    """What a bench writes: its rows, its settings, and the commit, date and machine of the measurement."""
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=repository, capture_output=True, text=True).stdout.strip()
-    return {"bench": bench, "commit": commit, "date": time.strftime("%Y-%m-%d %H:%M"),
-            "machine": {**machine_description(), "python": platform.python_version()},
-            "settings": settings, "rows": rows}
 
 
 def load_path_summary(path: LoadPath) -> dict:

@@ -1,0 +1,156 @@
+"""Rewrite the measured blocks of the README and docs from the bench records.
+
+A block sits between two markers naming its record and its renderer:
+
+    <!-- measured: docs/measured/all_default.json headline -->
+    ... (generated: do not edit by hand)
+    <!-- end measured -->
+
+    python bench/update_docs.py            # rewrite every block
+    python bench/update_docs.py --check    # exit 1, naming the block, if one differs from its record
+
+tests/test_measured_blocks.py runs the check, so a number edited by hand, or a record
+regenerated without its blocks, fails the suite."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCUMENTS = ("README.md", "docs/measured.md")
+BLOCK = re.compile(r"(<!-- measured: (\S+) (\w+) -->\n)(.*?)(<!-- end measured -->)", re.S)
+
+
+def rows_of(record: dict, table: str) -> list[dict]:
+    try:
+        return record["figures"]["tables"][table]
+    except KeyError:
+        raise ValueError(f"record of bench {record.get('bench')!r} has no table {table!r}") from None
+
+
+def pick(rows: list[dict], **match) -> dict:
+    found = [r for r in rows if all(r.get(k) == v for k, v in match.items())]
+    if len(found) != 1:
+        raise ValueError(f"{len(found)} rows match {match}, not one")
+    return found[0]
+
+
+def run_label(record: dict) -> str:
+    return f"`all` of {record['date'].split()[0]}"
+
+
+def adaptive_rows(record: dict) -> list[dict]:
+    """The adaptive runs of the validation path in the run's speedup table, with their error."""
+    speed, accuracy = rows_of(record, "speedup.csv"), rows_of(record, "accuracy.csv")
+    reference = pick(speed, source="this run", method=record["figures"]["headline"]["reference"])
+    rows = []
+    for row in speed:
+        if row["source"] == "this run" and str(row["method"]).startswith("adaptive"):
+            error = pick(accuracy, method=row["method"])["top_force_max_rel_pct"]
+            rows.append({"method": row["method"], "error": error, "wall_s": row["wall_time_s"],
+                         "dem_work": row["dem_particle_steps"] / reference["dem_particle_steps"]})
+    return rows
+
+
+def render_headline(record: dict) -> str:
+    """The rows of the README's headline table measured in one `all` run."""
+    f, h = record["figures"], record["figures"]["headline"]
+    machine, label = record["machine"], run_label(record)
+    rules = f["rules_wall_s"]
+    setup = f"set-up {f['setup_s']:.0f} s, " if f.get("setup_s") is not None else ""
+    report = f"report {f['report_s']:.0f} s" if f.get("report_s") is not None else ""
+    total = sum(v for v in (f["all_wall_s"], f.get("setup_s"), f.get("report_s")) if v is not None)
+    note = f", {f['note']}" if f.get("note") else ""
+    lines = [
+        "| quantity | value | from |",
+        "| --- | --- | --- |",
+        f"| `snakemake -j2 all`, default scale | **{f['all_wall_s'] / 60:.1f} min** ({setup}{report}: "
+        f"{total / 60:.0f} min in all) | fresh clone, {label}, {machine['cores']} cores{note} |",
+        f"| FEM–DEM, default scale ({h['gauss_points']} RVEs × {h['n_spheres']} spheres, 2 workers) | "
+        f"Path1 {rules['fem_dem/path1']:.0f} s, Path2 {rules['fem_dem/path2']:.0f} s | {label}, its `benchmarks/` files |",
+        f"| DEM particle-steps, default scale | Path1 {f['dem_particle_steps']['path1']:.2e}, "
+        f"Path2 {f['dem_particle_steps']['path2']:.2e} | {label}, the run files |",
+        f"| FEM–ML error on Path2 (largest top-force error over the path, % of the peak) | "
+        f"**{h['top_force_max_rel_pct']:.2f} %** (no history variables: {h['ablation_top_force_max_rel_pct']:.2f} %) | "
+        f"the default networks as trained in {label} |",
+        f"| speedup of one FEM–ML answer | **{h['speedup']:.0f}×** (Path2: {h['surrogate_wall_time_s']:.2f} s against "
+        f"FEM–DEM's {h['reference_wall_time_s']:.0f} s); making the surrogate took {h['surrogate_cost_s']:.0f} s "
+        f"and pays back after {h['break_even_runs']} runs | {label}, side by side |",
+    ]
+    for row in adaptive_rows(record):
+        threshold = row["method"].split(", ", 1)[-1]
+        lines.append(f"| adaptive FEM–DEM–ML, Path2, {threshold} | {row['error']:.2f} % at "
+                     f"{100 * row['dem_work']:.1f} % of FEM–DEM's DEM particle-steps, {row['wall_s']:.0f} s | {label} |")
+    band = pick(rows_of(record, "biaxial_bands.csv"), run="biaxial")
+    lines.append(
+        f"| biaxial test ({band['mesh'].replace('x', ' × ')} quad8, {band['Gauss points']} RVEs) | force peak at "
+        f"{band['axial strain at peak (%)']:.2f} % axial strain; band onset {band['band onset: axial strain (%)']:.2f} %, "
+        f"{band['inclination to σ3 (deg)']:.1f}° to σ3 (Roscoe {band['Roscoe 45+ψ/2 (deg)']:.1f}°); "
+        f"FEM–DEM {rules['biaxial/fem_dem/biaxial']:.0f} s | {label} |")
+    footing = pick(rows_of(record, "footing.csv"), run="footing")
+    lines.append(
+        f"| strip footing ({footing['Gauss points']} RVEs) | {footing['largest pressure / q0']:.1f} q0 at "
+        f"s/B = {footing['settlement at the end s/B (%)']:.0f} %, still rising "
+        f"({footing['pressure gain over the last 20 % of the settlement (%)']:.0f} % over the last fifth); "
+        f"FEM–DEM {rules['footing/fem_dem/footing']:.0f} s | {label} |")
+    return "\n".join(lines) + "\n"
+
+
+def render_rules(record: dict) -> str:
+    """The wall time of every heavy rule of one `all` run (a table)."""
+    f, label = record["figures"], run_label(record)
+    lines = [f"{label}, commit {record['commit'][:7]}, {record['machine']['cpu']}: `snakemake -j2 all` "
+             f"**{f['all_wall_s'] / 60:.1f} minutes** ({f['all_wall_s']:.0f} s). Rules of more than 10 s:", "",
+             "| rule (benchmark file) | wall (s) |", "| --- | --- |"]
+    for name, seconds in sorted(f["rules_wall_s"].items(), key=lambda item: -item[1]):
+        if seconds > 10:
+            lines.append(f"| `{name}` | {seconds:.0f} |")
+    return "\n".join(lines) + "\n"
+
+
+RENDERERS = {"headline": render_headline, "rules": render_rules}
+
+
+def rewrite(text: str, document: str) -> str:
+    def block(match):
+        record_path, renderer = ROOT / match.group(2), match.group(3)
+        if renderer not in RENDERERS:
+            raise ValueError(f"{document}: unknown renderer {renderer!r} (known: {sorted(RENDERERS)})")
+        try:
+            record = json.loads(record_path.read_text())
+        except (OSError, json.JSONDecodeError) as error:
+            raise ValueError(f"{document}: record {match.group(2)}: {error}") from error
+        return match.group(1) + RENDERERS[renderer](record) + match.group(5)
+
+    return BLOCK.sub(block, text)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--check", action="store_true", help="change nothing; exit 1 if a block is stale")
+    args = parser.parse_args(argv)
+    stale = []
+    for document in DOCUMENTS:
+        path = ROOT / document
+        text = path.read_text()
+        if not BLOCK.search(text):
+            continue
+        new = rewrite(text, document)
+        if new != text:
+            stale.append(document)
+            if not args.check:
+                path.write_text(new)
+    if args.check and stale:
+        print(f"measured blocks differ from their records in {', '.join(stale)}: run python bench/update_docs.py",
+              file=sys.stderr)
+        return 1
+    print("rewrote " + ", ".join(stale) if stale and not args.check else "measured blocks are current")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
