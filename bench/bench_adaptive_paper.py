@@ -50,7 +50,7 @@ from granular_multiscale.data import read_run
 from granular_multiscale.drivers.adaptive import run_adaptive
 from granular_multiscale.drivers.fem_ml import run_fem_ml
 
-from bench_adaptive_variants import parse_variant, variant_name
+from common import parse_variant, variant_name
 
 
 def promotion_forecast(fem_ml, thresholds) -> list[dict]:

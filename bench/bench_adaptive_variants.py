@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import copy
 import logging
-import re
 import time
 from pathlib import Path
 
@@ -36,30 +35,7 @@ from granular_multiscale.data import read_run
 from granular_multiscale.drivers.adaptive import run_adaptive
 from granular_multiscale.drivers.fem_ml import run_fem_ml
 
-
-def parse_variant(text: str) -> dict:
-    """'anchor_fraction=0.1,correction=kernel,threshold=inf,anchor_seed=3' -> {key: value}: integers,
-    numbers (inf, .inf) and strings."""
-    out = {}
-    for item in filter(None, text.split(",")):
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise SystemExit(f"bench_adaptive_variants: variant item {item!r} is not key=value")
-        value = value.strip()
-        try:
-            out[key.strip()] = int(value)  # anchor_seed
-        except ValueError:
-            try:
-                out[key.strip()] = float(value.replace(".inf", "inf"))  # 0.1, inf, .inf
-            except ValueError:
-                out[key.strip()] = value
-    out.setdefault("threshold", float("inf"))
-    return out
-
-
-def variant_name(variant: dict) -> str:
-    return re.sub(r"[^A-Za-z0-9_.,=-]+", "_", ",".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
-                                                     for k, v in sorted(variant.items())))
+from common import parse_variant, variant_name
 
 
 def measure(reference, run, wall: float) -> dict:

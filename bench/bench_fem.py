@@ -142,9 +142,9 @@ def bench_fem_ml(problem, u, strain, repeat: int) -> None:
     torch.set_num_threads(1)
     config = validate_config({"reference_material": "elastoplastic"})
     settings = config["surrogate"]
-    # networks trained briefly on the elastoplastic reference (bench_fem_ml_vs_dem.surrogate_models):
+    # networks trained briefly on the elastoplastic reference (common.surrogate_models):
     # a forward pass costs the same whatever the weights, but the solve depends on the tangent
-    from bench_fem_ml_vs_dem import surrogate_models
+    from common import surrogate_models
 
     small = TriaxialProblem(size=(0.5, 0.5, 1.0), elements=(2, 2, 4))
     sigma_path, tangent_path, note = surrogate_models(config, None, small, None)

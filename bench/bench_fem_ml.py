@@ -50,7 +50,7 @@ from granular_multiscale.paths import load_paths_from_config
 from granular_multiscale.drivers.fem_ml import run_fem_ml
 from granular_multiscale.surrogate.models import SurrogateModel
 
-from bench_fem_ml_vs_dem import train_elastoplastic_models
+from common import train_elastoplastic_models
 
 
 def quick_models(config: dict, folder: Path, epochs: int) -> tuple[Path, Path]:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import tempfile
 import time
 from pathlib import Path
 
@@ -28,8 +27,9 @@ import yaml
 from granular_multiscale.config import CONFIG_DIR, load_config, validate_config
 from granular_multiscale.fem.newton import ConvergenceError
 from granular_multiscale.fem.triaxial import TriaxialProblem
-from granular_multiscale.materials import Elastoplastic
 from granular_multiscale.paths import LoadPath, load_paths_from_config
+
+from common import surrogate_models
 
 ROOT = Path(__file__).resolve().parents[1]
 SCALES = {"tiny": "tiny.yaml", "default": "config.yaml"}
@@ -66,42 +66,6 @@ def run_fem_dem(config, path, packing, workers, logger):
         ds = problem.run(material, path, method="dem", logger=logger, progress=True)
         split = material.time_split()
     return problem, ds, split, start, cfg["newton"]
-
-
-def train_elastoplastic_models(config, elements, folder: Path, logger=None, **settings) -> tuple[Path, Path]:
-    """NNσ and ND trained on the elastoplastic reference run of the training path on a mesh of
-    `elements` (the config's specimen otherwise), with the config's surrogate settings
-    overridden by `settings`; returns the two model files written to `folder`."""
-    from granular_multiscale.surrogate.dataset import build_dataset
-    from granular_multiscale.surrogate.training import train
-
-    source = TriaxialProblem.from_config(dict(config, specimen=dict(config["specimen"], elements=list(elements))))
-    reference = source.run(Elastoplastic(source.n_gauss_points, initial_stress=source.initial_stress),
-                           load_paths_from_config(config)[config["training_path"]], progress=False)
-    train_ds, heldout_ds = build_dataset(reference, config["surrogate"]["train_fraction"], config["seed"],
-                                         split=config["surrogate"]["split"])
-    files = []
-    for kind in ("sigma", "tangent"):
-        model, _, _ = train(train_ds, heldout_ds, kind, dict(config["surrogate"], **settings), config["seed"],
-                            config=config, logger=logger)
-        files.append(Path(folder) / f"nn_{kind}.pt")
-        model.save(files[-1])
-    return files[0], files[1]
-
-
-def surrogate_models(config, models_dir, problem, logger):
-    if models_dir:
-        folder = Path(models_dir)
-        return folder / "nn_sigma.pt", folder / "nn_tangent.pt", f"pipeline models in {folder}"
-    # at least 2×2 elements across: one element across keeps ε12 at round-off, which the
-    # networks' min–max scaling would turn into noise
-    elements = tuple(max(n, m) for n, m in zip(problem.elements, (2, 2, 4)))
-    t0 = time.perf_counter()
-    sigma, tangent = train_elastoplastic_models(config, elements, Path(tempfile.mkdtemp(prefix="bench_models_")),
-                                                logger, epochs=150, learning_rate=5e-3, batch_size=256)
-    return (sigma, tangent,
-            f"trained here on the elastoplastic {config['training_path']} at {'x'.join(map(str, elements))} "
-            f"({time.perf_counter() - t0:.0f} s, 150 epochs)")
 
 
 def main() -> None:

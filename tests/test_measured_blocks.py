@@ -73,3 +73,11 @@ def test_a_block_with_an_unknown_renderer_is_named():
     text = "<!-- measured: docs/measured/all_default.json nonsense -->\nx\n<!-- end measured -->"
     with pytest.raises(ValueError, match="unknown renderer 'nonsense'"):
         update_docs.rewrite(text, "README.md")
+
+
+def test_adaptive_variants_of_the_command_line():
+    variant = common.parse_variant("anchor_fraction=0.1,correction=kernel,anchor_seed=3,threshold=.inf")
+    assert variant == {"anchor_fraction": 0.1, "correction": "kernel", "anchor_seed": 3, "threshold": float("inf")}
+    assert common.variant_name({"threshold": 0.02, "correction": "kernel"}) == "correction=kernel,threshold=0.02"
+    with pytest.raises(SystemExit, match="'kernel' is not key=value"):
+        common.parse_variant("correction=none,kernel")
