@@ -73,6 +73,7 @@ def drive(dem, strains, activate: dict | None = None, detour: bool = True) -> li
     return converged
 
 
+@pytest.mark.needs_yade
 def test_replayed_rve_is_bit_for_bit_the_rve_that_followed_the_strains(tmp_path_factory):
     path, _ = packing(tmp_path_factory)
     n, strains = 4, strain_history(4, 7)
@@ -213,6 +214,7 @@ def fem_dem_run(setup, tmp_path_factory):
     return run_fem_dem(config, "p", packings, str(tmp_path_factory.mktemp("fem_dem") / "p.h5"), None, 2)
 
 
+@pytest.mark.needs_yade
 def test_threshold_infinity_is_fem_ml(setup, fem_ml_run, tmp_path):
     run = adaptive(setup, np.inf, trajectories=tmp_path / "dem_points.h5")
     # no point ran DEM: a file of no trajectories, which the dataset refuses by name (test_dataset.py)
@@ -225,6 +227,7 @@ def test_threshold_infinity_is_fem_ml(setup, fem_ml_run, tmp_path):
     np.testing.assert_array_equal(run.indicator.values, fem_ml_run.stress_spread_relative.values)
 
 
+@pytest.mark.needs_yade
 def test_threshold_zero_and_all_anchors_are_fem_dem(setup, fem_dem_run):
     for run in (adaptive(setup, 0.0), adaptive(setup, np.inf, anchor_fraction=1.0)):
         assert_same(run, fem_dem_run, SAME + DEM_SAME)
@@ -257,6 +260,7 @@ def between(setup, fem_ml_run, tmp_path_factory):
     return threshold, run, read_run(folder / "dem_points.h5", required=DEM_TRAJECTORY_VARIABLES)
 
 
+@pytest.mark.needs_yade
 def test_promotions_and_resume_after_kill(setup, between, fem_ml_run, fem_dem_run, tmp_path):
     """At the threshold between: the points whose spread reaches it go DEM (replaying their history),
     the others stay surrogate; killed after the first promotion and started again, the run ends with
@@ -308,6 +312,7 @@ def test_promotions_and_resume_after_kill(setup, between, fem_ml_run, fem_dem_ru
                                       "replay_particle_steps", "stress_spread"))
 
 
+@pytest.mark.needs_yade
 def test_dem_points_are_training_data(setup, between, fem_dem_run):
     """What the RVEs of the promoted points answered, along their whole histories (the past from the
     replay): the adaptive run's stresses where they ran DEM, a source for the dataset like an RVE-path
@@ -340,6 +345,7 @@ def test_dem_points_are_training_data(setup, between, fem_dem_run):
     assert (source == "dem points").sum() == points.sizes["gp"] and train.valid.values.any()
 
 
+@pytest.mark.needs_yade
 def test_rule_writes_the_run_its_log_and_benchmark(setup, between, tmp_path):
     """`snakemake <out>/adaptive/t<threshold>/p.h5` with the packing and networks in place (only the
     rule adaptive may run): the run of the driver, with the threshold from adaptive.thresholds."""
@@ -368,6 +374,7 @@ def test_rule_writes_the_run_its_log_and_benchmark(setup, between, tmp_path):
     assert (out / "benchmarks" / "adaptive" / f"t{threshold:g}" / "p.tsv").exists()
 
 
+@pytest.mark.needs_yade
 def test_report_rows_curve_and_mode_map(setup, between, fem_ml_run, fem_dem_run, tmp_path):
     """With adaptive.report the adaptive runs are rows of the speedup and accuracy tables, a curve
     from FEM–ML to FEM–DEM in the speed-vs-error figure, and the mode map: here from the real runs."""
@@ -407,6 +414,7 @@ def test_report_rows_curve_and_mode_map(setup, between, fem_ml_run, fem_dem_run,
     assert len(columns) == 8 and np.isclose(2 * share.sum(), run.point_mode.values[STEPS].sum())
 
 
+@pytest.mark.needs_yade
 def test_one_round_of_active_learning(setup, between, fem_dem_run, tmp_path):
     """`snakemake active_learning` with the packing, the networks and the FEM–DEM run in place: the
     adaptive run at adaptive.active_learning.threshold (the run of `between`, bit for bit), its DEM
@@ -458,6 +466,7 @@ def test_one_round_of_active_learning(setup, between, fem_dem_run, tmp_path):
     assert table.loc["first", "promotions"] == points.sizes["gp"] and table.loc["FEM–ML", "dem_particle_steps"] == 0
 
 
+@pytest.mark.needs_yade
 def test_kernel_correction_carries_the_dem_points_residual(setup, fem_ml_run, fem_dem_run):
     """Pass criterion: a quarter of the points as DEM anchors, no promotions. Without correction the
     other points answer with the rough networks (FEM–ML's error); with the kernel correction they add

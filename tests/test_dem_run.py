@@ -117,6 +117,7 @@ def _kill_after_step(proc, checkpoint: Path, kill_step: int, timeout: float = 30
     return step
 
 
+@pytest.mark.needs_yade
 def test_determinism_and_resume_after_kill(tmp_path_factory, tmp_path):
     """Two uninterrupted runs (2 and 1 workers) agree bit for bit; a run killed after its third
     converged step and started again resumes from the checkpoint (the newest RVE snapshot +
@@ -156,6 +157,7 @@ def test_determinism_and_resume_after_kill(tmp_path_factory, tmp_path):
     assert c.attrs["total_newton_corrections"] == a.attrs["total_newton_corrections"]
 
 
+@pytest.mark.needs_yade
 def test_resume_after_a_config_change_starts_afresh(tmp_path_factory, tmp_path):
     """Killed, then started again with other DEM settings (dem.max_steps): the checkpoint is set
     aside with one log line and the run starts from the packings, with the result of a fresh run."""
@@ -174,6 +176,7 @@ def test_resume_after_a_config_change_starts_afresh(tmp_path_factory, tmp_path):
     _same_results(fresh, read_run(tmp_path / "p.h5"))
 
 
+@pytest.mark.needs_yade
 def test_dask_local_cluster_equals_local_pool(tmp_path_factory, tmp_path):
     from distributed import Client, LocalCluster
 

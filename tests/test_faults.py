@@ -173,6 +173,7 @@ def _fem_dem(tmp_path, config, packings, output, ckpt, kill_at=-1):
     return proc
 
 
+@pytest.mark.needs_yade
 def test_kill_between_snapshot_and_commit_and_a_corrupt_snapshot(tmp_path_factory, tmp_path):
     """FEM–DEM with RVE snapshots every 2 commits. (1) Killed with -9 after the snapshot of
     commit 4 was written, before the checkpoint of step 3 committed it: the rerun resumes from

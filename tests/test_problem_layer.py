@@ -57,6 +57,7 @@ def test_triaxial_elastoplastic_runs_are_those_before_the_problem_layer(tmp_path
     assert_same_as_before(name, tmp_path / f"{name}.h5")
 
 
+@pytest.mark.needs_yade
 @pytest.mark.slow
 def test_triaxial_fem_dem_run_is_that_before_the_problem_layer(tmp_path, tmp_path_factory):
     packing_file, _ = packing(tmp_path_factory)

@@ -281,6 +281,7 @@ def dem_biaxial_config(tmp_path: Path) -> dict:
     return tiny_config(tmp_path / "o", {"path1": [[2, 0.002]]}, snapshot_interval=3)
 
 
+@pytest.mark.needs_yade
 @pytest.mark.slow
 def test_biaxial_with_yade_rves_forms_a_band(tmp_path_factory, tmp_path):
     """32 RVEs of 100 spheres, two of them weak (frictionless): past the peak a band carries at
@@ -324,6 +325,7 @@ def _start(tmp_path, args) -> subprocess.Popen:
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
 
 
+@pytest.mark.needs_yade
 @pytest.mark.slow
 def test_biaxial_fem_dem_resumes_after_kill_9_bit_for_bit(tmp_path_factory, tmp_path):
     strong, _ = packing(tmp_path_factory)
@@ -358,6 +360,7 @@ def test_biaxial_fem_dem_resumes_after_kill_9_bit_for_bit(tmp_path_factory, tmp_
         assert np.array_equal(whole[name].values, again[name].values), name
 
 
+@pytest.mark.needs_yade
 @pytest.mark.slow
 def test_every_driver_runs_the_biaxial_test(tmp_path_factory, tmp_path):
     """FEM–ML and the adaptive set on the biaxial test: FEM–ML runs the path with the networks at

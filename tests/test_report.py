@@ -54,7 +54,7 @@ def plain(html_text):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("reference", ["elastoplastic", "dem"])
+@pytest.mark.parametrize("reference", ["elastoplastic", pytest.param("dem", marks=pytest.mark.needs_yade)])
 def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     """The elastoplastic chain builds its report in the same call (--report-after-run: the front
     page must state the numbers this run has just written), the DEM chain with a second call

@@ -277,6 +277,7 @@ def _subprocess(tmp_path, config, packings, output, checkpoint):
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
 
 
+@pytest.mark.needs_yade
 @pytest.mark.slow
 def test_rves_follow_the_strain_and_a_killed_run_resumes_bit_for_bit(tmp_path_factory, tmp_path, caplog):
     path, summary = packing(tmp_path_factory)
@@ -340,6 +341,7 @@ def test_rves_follow_the_strain_and_a_killed_run_resumes_bit_for_bit(tmp_path_fa
     assert c.attrs["dem_particle_steps"] == ds.attrs["dem_particle_steps"]
 
 
+@pytest.mark.needs_yade
 @pytest.mark.slow
 def test_a_trajectory_that_loses_its_contacts_is_reported_and_nan(tmp_path_factory, tmp_path, caplog):
     """Isotropic extension (ν = −1, extension bound set loose) of 2e-3 per step takes one RVE's

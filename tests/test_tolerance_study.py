@@ -60,6 +60,7 @@ def test_table_numbers_and_the_error_falling_with_the_tolerance():
         tolerance_table(runs, settings, converged="nope")
 
 
+@pytest.mark.needs_yade
 @pytest.mark.slow
 def test_rule_at_the_tiny_scale(tmp_path):
     """`snakemake tolerance_study` with real YADE RVEs: one run per variant, the table, the
