@@ -34,6 +34,7 @@ include: "workflow/rules/surrogate.smk"
 include: "workflow/rules/adaptive.smk"
 include: "workflow/rules/analysis.smk"
 include: "workflow/rules/problems.smk"
+include: "workflow/rules/problem_surrogate.smk"
 
 
 report: "workflow/report/workflow.rst"

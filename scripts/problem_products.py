@@ -3,7 +3,7 @@ specimen (granular_multiscale.analysis.problems); params.kind names the product.
 
 import numpy as np
 
-from granular_multiscale.analysis import problems
+from granular_multiscale.analysis import problem_surrogate, problems
 from granular_multiscale.analysis.tables import write_csv
 from granular_multiscale.atomic import atomic_path
 from granular_multiscale.data import read_run
@@ -54,6 +54,18 @@ def main(sm) -> None:
         elif p.kind == "footing":
             angles = problems.read_table(sm.input.angles)
             _write_table(problems.footing_table(_runs(p.labels, sm.input.runs), angles), sm.output, logger)
+        elif p.kind == "surrogate":
+            runs = _runs(p.labels, sm.input.runs)
+            reference, others = runs[p.labels[0]], {k: v for k, v in runs.items() if k != p.labels[0]}
+            _write_table(problem_surrogate.comparison_table(reference, runs), sm.output, logger)
+            problems.response_figure(runs, sm.output.response, title=f"{p.title}: every method", dpi=dpi)
+            problem_surrogate.error_map_figure(reference, others, sm.output.error_map,
+                                               title=f"{p.title}: stress error against {p.labels[0]}",
+                                               deformation_scale=float(settings.get("deformation_scale", 1.0)),
+                                               dpi=dpi)
+        elif p.kind == "visited_states":
+            runs = {label: read_run(f, required=("strain", "stress")) for label, f in zip(p.labels, sm.input.runs)}
+            _write_table(problem_surrogate.state_ranges(runs, float(p.pressure)), sm.output, logger)
         elif p.kind == "mesh_study":
             runs = _runs(p.labels, sm.input.runs)
             _write_table(problems.mesh_table(runs), sm.output, logger)

@@ -1,4 +1,5 @@
-"""Rules fem_ml, fem_ml_nohist, fem_ml_tangent: the FEM solver with the surrogate at the Gauss points."""
+"""Rules fem_ml, fem_ml_nohist, fem_ml_tangent, problem_fem_ml: the FEM solver with the surrogate at
+the Gauss points, on a load path of the triaxial specimen or of another problem (params.problem)."""
 
 from granular_multiscale.config import validate_config
 from granular_multiscale.data import write_run
@@ -6,11 +7,13 @@ from granular_multiscale.runlog import setup_logging, timed_rule
 from granular_multiscale.drivers.fem_ml import run_fem_ml
 
 
-def main(config, path_name, sigma, tangent_model, tangent, output, log, allow_partial=False) -> None:
+def main(config, path_name, sigma, tangent_model, tangent, output, log, allow_partial=False,
+         problem="triaxial") -> None:
     config = validate_config(config)
     logger = setup_logging(log)
-    with timed_rule(logger, f"FEM–ML {path_name} ({tangent} tangent)"):
-        ds = run_fem_ml(config, path_name, sigma, tangent_model, tangent, logger=logger, allow_partial=allow_partial)
+    with timed_rule(logger, f"FEM–ML {problem} {path_name} ({tangent} tangent)"):
+        ds = run_fem_ml(config, path_name, sigma, tangent_model, tangent, logger=logger, allow_partial=allow_partial,
+                        problem=problem)
         write_run(ds, output, config)
         logger.info("wrote %s (method %s, %d steps, completed %d)", output, ds.attrs["method"], ds.sizes["step"] - 1,
                     ds.attrs["completed"])
@@ -18,5 +21,6 @@ def main(config, path_name, sigma, tangent_model, tangent, output, log, allow_pa
 
 if "snakemake" in globals():
     sm = snakemake  # noqa: F821
-    main(dict(sm.config), sm.wildcards.path, sm.input.sigma, sm.input.tangent, sm.params.tangent, sm.output[0],
-         sm.log[0], allow_partial=bool(sm.params.get("allow_partial", False)))
+    main(dict(sm.config), sm.params.get("path_name") or sm.wildcards.path, sm.input.sigma, sm.input.tangent,
+         sm.params.tangent, sm.output[0], sm.log[0], allow_partial=bool(sm.params.get("allow_partial", False)),
+         problem=sm.params.get("problem") or "triaxial")

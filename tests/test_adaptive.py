@@ -28,12 +28,13 @@ from dem_fixtures import ROOT, SETTINGS, packing, tiny_config
 
 from granular_multiscale.adaptive.material import anchor_points, residual_correction
 from granular_multiscale.analysis.metrics import curve_errors
-from granular_multiscale.data import read_run
+from granular_multiscale.data import read_run, write_run
 from granular_multiscale.dem.material import DemMaterialPointSet
 from granular_multiscale.dem.subset import DemSubsetMaterialPointSet
 from granular_multiscale.drivers.adaptive import DEM_TRAJECTORY_VARIABLES, configured_anchors, run_adaptive
 from granular_multiscale.drivers.fem_dem import dem_newton_config, run_fem_dem
 from granular_multiscale.drivers.fem_ml import run_fem_ml
+from granular_multiscale.drivers.reference import run_fem_reference
 from granular_multiscale.materials.elastoplastic import Elastoplastic
 from granular_multiscale.paths import load_paths_from_config
 from granular_multiscale.surrogate.dataset import build_dataset
@@ -310,6 +311,29 @@ def test_promotions_and_resume_after_kill(setup, between, fem_ml_run, fem_dem_ru
     resumed = read_run(output)
     assert_same(resumed, run, SAME + ("point_mode", "indicator", "promotions", "particle_steps",
                                       "replay_particle_steps", "stress_spread"))
+
+
+@pytest.mark.needs_yade
+def test_control_copies_the_promotions_and_answers_with_the_elastoplastic_model(setup, between, tmp_path):
+    """Control (b): the networks replaced by the elastoplastic model, the DEM points and the steps of
+    their promotions copied from the network run. The same points are DEM at every step (so the
+    same DEM work where the strains agree); until the first promotion the run is FEM with the
+    elastoplastic model at every point, bit for bit; after it, the DEM points answer from their RVEs."""
+    threshold, run, points = between
+    schedule = write_run(points, tmp_path / "dem_points.h5", required=DEM_TRAJECTORY_VARIABLES)
+    control = adaptive(setup, threshold, control="elastoplastic", schedule_from=schedule)
+    assert np.array_equal(control.point_mode.values, run.point_mode.values)
+    assert control.attrs["adaptive_indicator"] == "schedule" and control.attrs["adaptive_control"] == "elastoplastic"
+    assert "stress_spread" not in control and control.attrs["dem_particle_steps"] > 0
+    first = int(np.flatnonzero(run.point_mode.values.any(axis=1))[0])
+    model = run_fem_reference(setup[0], "p", tmp_path / "model.h5")
+    assert_same(control.isel(step=slice(0, first)), model.isel(step=slice(0, first)))
+    dem = control.point_mode.values[-1].astype(bool)
+    assert not np.allclose(control.stress.values[-1][dem], model.stress.values[-1][dem], rtol=1e-3)
+    with pytest.raises(ValueError, match="3 points, this run has 16"):
+        write_run(points.isel(gp=slice(0, 1)).assign_attrs(n_points=3), tmp_path / "bad.h5",
+                  required=DEM_TRAJECTORY_VARIABLES)
+        adaptive(setup, threshold, control="elastoplastic", schedule_from=tmp_path / "bad.h5")
 
 
 @pytest.mark.needs_yade

@@ -37,7 +37,10 @@ FIGURES = [
 ]
 PROBLEM_PRODUCTS = ["figures/biaxial/response.png", "figures/biaxial/fields_biaxial.png", "figures/footing/response.png",
                     "figures/footing/fields_footing.png", "tables/biaxial_bands.csv", "tables/footing.csv",
-                    "tables/rve_angles.csv", "vtk/biaxial/biaxial", "vtk/footing/footing"]
+                    "tables/rve_angles.csv", "tables/visited_states.csv", "vtk/biaxial/biaxial", "vtk/footing/footing",
+                    *[f"{kind}/{p}/{name}_{p}.{ext}" for p in ("biaxial", "footing") for kind, name, ext in
+                      [("tables", "surrogate", "csv"), ("figures", "surrogate_response", "png"),
+                       ("figures", "error_map", "png")]]]
 TABLES = ["speedup.csv", "speedup.html", "accuracy.csv", "accuracy.html", "surrogate_cost.csv", "surrogate_cost.html",
           "calibration.csv", "calibration.html", "validation_by_phase.csv", "validation_by_phase.html"]
 
@@ -135,7 +138,11 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
         # the problems: named on the front page, each product in its category with its caption
         assert "plane-strain biaxial test: 50 × 100 mm, 2 × 4 quad8 elements, 32 Gauss points (RVEs)" in description
         assert "strip footing: width 100 mm, half of a domain" in description
-        assert "7 Problems beyond the triaxial specimen" in html
+        assert "7 Problems beyond the triaxial specimen" in html and "8 The surrogate on the problems" in html
+        for p in ("biaxial", "footing"):  # FEM–ML on the problems, against the reference, to the end
+            surrogate = pd.read_csv(out / "tables" / p / f"surrogate_{p}.csv")
+            assert len(surrogate) == 2 and surrogate["force: largest error (% of peak)"].iloc[0] == 0
+            assert np.isfinite(surrogate["force: largest error (% of peak)"].iloc[1])
         for name in PROBLEM_PRODUCTS:
             if not name.startswith("vtk/"):
                 assert f'"name": "{Path(name).name}"' in html, f"{name} missing from the report"

@@ -32,6 +32,7 @@ TRAINING_KEYS = [
 # the dem settings that say where a run is computed, not what it computes: changing them reruns nothing
 WHERE_DEM_RUNS = ("executor", "n_workers", "dask_scheduler")
 FIELD_QUANTITIES = ["axial_displacement", "shear_strain", "sigma23"]
+CONTROL_LABEL = {"linear_elastic": "elastic model", "elastoplastic": "elastoplastic model fitted to Path1"}
 PROBLEM_LABEL = {"biaxial": "Biaxial test (plane strain)", "footing": "Strip footing (plane strain)"}
 ELEMENT_TESTS = {"triaxial": "triaxial compression", "biaxial": "plane strain compression"}
 # the two rounds of the surrogate: the pipeline's networks, and those of one active-learning round
@@ -116,6 +117,10 @@ class Layout:
     def problem_run(self, problem: str, method: str, case: str) -> str:
         return self._file(problem, method, f"{case}.h5")
 
+    def problem_dem_points(self, problem: str, method: str, case: str) -> str:
+        """The DEM answers of an adaptive problem run's DEM points (what its control copies)."""
+        return self._file(problem, method, "dem_points", f"{case}.h5")
+
     def element_test(self, method: str, test: str) -> str:
         return self._file("element_tests", method, f"{test}.h5")
 
@@ -189,6 +194,13 @@ class Plan:
         self.problem_cases = {p: list(config[p]["load_paths"]) for p in self.problems}
         self.weak_zone = config["biaxial"]["weak_zone"]
         self.biaxial_meshes = ["x".join(map(str, m)) for m in config["analysis"]["biaxial_meshes"]]
+        # the surrogate on the problems: FEM–ML, and with a DEM reference and adaptive.report the adaptive
+        # run at adaptive.problem_threshold beside its controls (the same promotions, an analytic model
+        # instead of the networks)
+        self.problem_threshold = float(adaptive["problem_threshold"])
+        self.problem_adaptive_method = f"adaptive_{threshold_label(self.problem_threshold)}"
+        self.controls = list(adaptive["controls"])
+        self.problem_adaptive = self.adaptive_in_report and bool(self.problems)
 
     # ---- training -------------------------------------------------------------------------
     def reference_run(self, path: str) -> str:
@@ -256,6 +268,13 @@ class Plan:
         ordered = sorted(self.adaptive_thresholds.items(), key=lambda item: -item[1])
         return {f"adaptive FEM–DEM–ML, threshold {t:g}": self.layout.adaptive(label, path) for label, t in ordered}
 
+    def control_runs(self, path: str) -> dict[str, str]:
+        """{label: run file} of the controls of the adaptive runs of a load path: per threshold and
+        model of adaptive.controls, the networks replaced by that model, the promotions copied."""
+        ordered = sorted(self.adaptive_thresholds.items(), key=lambda item: -item[1])
+        return {f"control: {CONTROL_LABEL[c]} + the DEM points of threshold {t:g}": self.layout.adaptive(f"{label}_{c}", path)
+                for label, t in ordered for c in self.controls}
+
     def adaptive_run_files(self) -> list[str]:
         """Every threshold of adaptive.thresholds on every path of adaptive.paths."""
         return [self.layout.adaptive(label, p) for label in self.adaptive_thresholds for p in self.adaptive_paths]
@@ -279,6 +298,7 @@ class Plan:
                     runs[f"FEM–DEM ({n} spheres)"] = self.layout.run(f"fem_dem_n{n}", path)
         if self.adaptive_in_report:
             runs.update(self.adaptive_runs(path))
+            runs.update(self.control_runs(path))
         return runs
 
     def speed_curve(self, path: str) -> list[str]:
@@ -341,6 +361,50 @@ class Plan:
         """The weak packing, for a problem whose config has a weak zone (the biaxial test)."""
         return [self.layout.weak_packing()] if problem == "biaxial" and self.weak_zone is not None else []
 
+    def control_method(self, control: str) -> str:
+        """The run folder of a control of the problems' adaptive run: 'control_elastoplastic_t0.02'."""
+        return f"control_{control}_{threshold_label(self.problem_threshold)}"
+
+    def problem_surrogate_definition(self, problem: str) -> dict:
+        """What a FEM–ML or adaptive run of `problem` depends on besides its inputs."""
+        c, s = self.config, self.config["surrogate"]
+        definition = {"section": c[problem], "pressure": c["specimen"]["confining_pressure"], "newton": c["newton"],
+                      "surrogate_newton": s["newton"], "anchor_initial_state": s["anchor_initial_state"],
+                      "out_of_range_tolerance": s["out_of_range_tolerance"]}
+        if self.problem_adaptive:
+            adaptive = {k: v for k, v in c["adaptive"].items() if k not in ("thresholds", "paths", "report",
+                                                                            "active_learning", "controls")}
+            definition.update({"dem": self.run_definition, "adaptive": adaptive, "seed": c["seed"]})
+        return definition
+
+    def problem_comparison(self, problem: str, case: str) -> dict[str, str]:
+        """Ordered {label: run file} of a problem's surrogate products: the reference first, FEM–ML and
+        the analytic model alone (no networks, no DEM), then the adaptive run and its controls."""
+        L = self.layout
+        runs = {self.reference_label: self.problem_run(problem, case), self.surrogate_label:
+                L.problem_run(problem, "fem_ml", case)}
+        if self.reference == "fem_dem":
+            runs["FEM, elastoplastic model fitted to Path1 (no networks)"] = L.problem_run(problem, "fem_elastoplastic",
+                                                                                            case)
+        if self.problem_adaptive:
+            t = f"{self.problem_threshold:g}"
+            runs[f"adaptive FEM–DEM–ML, threshold {t}"] = L.problem_run(problem, self.problem_adaptive_method, case)
+            for control in self.controls:
+                runs[f"control: {CONTROL_LABEL[control]} + the same DEM points"] = L.problem_run(
+                    problem, self.control_method(control), case)
+        return runs
+
+    def visited_states_runs(self) -> dict[str, str]:
+        """{label: run file} of the states table: every training source, the validation path's
+        reference run, and each problem's reference runs."""
+        L = self.layout
+        runs = {f"training: reference run of {path_label(p)}": self.reference_run(p) for p in self.training_run_paths}
+        runs.update({f"training: RVE paths '{s}'": L.rve_paths(s) for s in self.training_rve_sets})
+        runs[f"validation: reference run of {path_label(self.validation_path)}"] = self.reference_run(self.validation_path)
+        for problem in self.problems:
+            runs.update({f"{problem}: reference run of {c}": self.problem_run(problem, c) for c in self.problem_cases[problem]})
+        return runs
+
     def element_runs(self) -> dict[str, str]:
         return {label: self.layout.element_test(self.reference, t) for t, label in ELEMENT_TESTS.items()}
 
@@ -369,11 +433,12 @@ class Plan:
             targets.append(L.figure("adaptive_mode_map.png"))
         targets += [L.figure("calibration.png"), L.table("calibration.csv"), L.table("calibration.html")]
         if self.problems:
-            targets.append(L.table("rve_angles.csv"))
+            targets += [L.table("rve_angles.csv"), L.table("visited_states.csv")]
         for p in self.problems:
             targets.append(L.figure(f"{p}/response.png"))
             targets += [L.figure(f"{p}/fields_{c}.png") for c in self.problem_cases[p]]
             targets += [L.vtk(p, c) for c in self.problem_cases[p]]
+            targets += [L.table(f"{p}/surrogate_{c}.csv") for c in self.problem_cases[p]]
         if "biaxial" in self.problems:
             targets.append(L.table("biaxial_bands.csv"))
         if "footing" in self.problems:

@@ -4,6 +4,8 @@
 #   adaptive        {OUT}/adaptive/t<threshold>/{path}.h5 (t0.01, t0.05, tinf, ...), checkpoint under
 #                   {OUT}/checkpoints/adaptive/ (not a declared output: a rerun after a kill resumes)
 #                   and .../dem_points/{path}.h5: the DEM answers of its promoted points (training data)
+#   adaptive_control  {OUT}/adaptive/t<threshold>_{control}/{path}.h5: the run's control, the networks
+#                   replaced by the analytic model {control} (adaptive.controls), its promotions copied
 #   adaptive_runs   every threshold of adaptive.thresholds on every path of adaptive.paths
 #   active_learning one round (adaptive.active_learning): the DEM answers of the runs at its
 #                   threshold join the training sources (surrogate.smk: dataset_active,
@@ -45,6 +47,29 @@ for _round, _thresholds in PLAN.adaptive_round_thresholds.items():
         threads: config["dem"]["n_workers"]
         script:
             "../../scripts/run_adaptive.py"
+
+
+use rule adaptive as adaptive_control with:
+    input:
+        packings=PLAN.packings,
+        schedule_from=L.adaptive_dem_points("{label}", "{path}"),
+    output:
+        run=L.adaptive("{label}_{control}", "{path}"),
+        trajectories=L.adaptive_dem_points("{label}_{control}", "{path}"),
+    log:
+        L.log("adaptive/{label}_{control}/{path}"),
+    benchmark:
+        L.benchmark("adaptive/{label}_{control}/{path}")
+    params:
+        threshold=lambda wc: PLAN.adaptive_thresholds[wc.label],
+        checkpoint=L.checkpoint("adaptive/{label}_{control}/{path}"),
+        tangent=config["surrogate"]["tangent"],
+        allow_partial=True,
+        depends=lambda wc: {**PLAN.adaptive_definition(wc.path), "model": config[wc.control]},
+        control=lambda wc: wc.control,
+    wildcard_constraints:
+        label="|".join(re.escape(label) for label in PLAN.adaptive_thresholds),
+        control="|".join(PLAN.controls) or "no-control",
 
 
 rule adaptive_runs:

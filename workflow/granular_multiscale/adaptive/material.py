@@ -76,6 +76,13 @@ from DEM from commit promoted_at + 1 on; 0 for anchors, −1 never); :meth:`poin
 into the mode per commit. Anchors (``adaptive.anchor_fraction``): a seeded random share of the
 points in DEM mode from the start (:func:`anchor_points`).
 
+Controls (``schedule``): the same set with the networks replaced by another material-point set
+(the elastoplastic model fitted to Path1, or the elastic one) and the promotions of a network run
+copied: point p turns DEM at the commit ``schedule[p]`` of that run (−1 never), whatever the
+control's own state. The control then spends the same DEM work on the same points at the same
+time; what differs is only what answers at the other points. A method that does not beat its
+control at the same DEM share measures how uniform the scene is, not the networks.
+
 Checkpoints: :meth:`get_state` holds the surrogate's state, the DEM subset's (its strain
 record and active points: it resumes by replaying them, bit for bit) and the records above.
 """
@@ -92,6 +99,8 @@ from ..materials.base import MaterialPointSet
 from ..surrogate.material import SurrogateMaterial, relative_spread
 
 INDICATORS = ("spread", "out_of_range", "max")
+#: the indicator of a control run: the promotions of another run, copied
+SCHEDULE = "schedule"
 CORRECTIONS = ("none", "kernel")
 STATE_FORMAT = "adaptive-state-v1"
 
@@ -125,13 +134,13 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
     def __init__(self, surrogate: SurrogateMaterial, dem: DemSubsetMaterialPointSet, threshold: float,
                  confining_pressure: float, indicator: str = "spread", out_of_range_weight: float = 1.0,
                  anchors=(), logger: logging.Logger | None = None, correction: str = "none",
-                 correction_length: float = 0.05):
+                 correction_length: float = 0.05, schedule=None):
         super().__init__(surrogate.n_points)
         if dem.n_points != surrogate.n_points:
             raise ValueError(f"the surrogate has {surrogate.n_points} points, the DEM set {dem.n_points}")
         if not float(threshold) >= 0.0:  # also refuses NaN
             raise ValueError(f"config key 'adaptive.thresholds': a threshold must be >= 0 (or .inf), got {threshold}")
-        if indicator not in INDICATORS:
+        if indicator not in INDICATORS and schedule is None:
             raise ValueError(f"config key 'adaptive.indicator' must be one of {INDICATORS}, got {indicator!r}")
         if not out_of_range_weight >= 0.0:
             raise ValueError(f"config key 'adaptive.out_of_range_weight' must be >= 0, got {out_of_range_weight}")
@@ -139,6 +148,17 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
             raise ValueError(f"config key 'adaptive.correction' must be one of {CORRECTIONS}, got {correction!r}")
         if not float(correction_length) > 0.0:
             raise ValueError(f"config key 'adaptive.correction_length' must be > 0 (or .inf), got {correction_length}")
+        if schedule is not None:
+            schedule = np.asarray(schedule, dtype=int)
+            if schedule.shape != (surrogate.n_points,):
+                raise ValueError(f"a promotion schedule needs one commit per point ({surrogate.n_points}), "
+                                 f"got shape {schedule.shape}")
+            if correction != "none":
+                raise ValueError("config key 'adaptive.correction': a control run (promotions copied from another "
+                                 "run) measures the residual in the networks' inputs, which its material has not; "
+                                 "use correction: none")
+            indicator = SCHEDULE
+        self.schedule = schedule
         self.correction, self.correction_length = correction, float(correction_length)
         self.surrogate, self.dem = surrogate, dem
         self.threshold = float(threshold)
@@ -183,8 +203,12 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
     def evaluate(self, strain: np.ndarray, need_tangent: bool = True):
         strain = self._check_strain(strain)
         stress, tangent = self.surrogate.evaluate(strain, need_tangent=need_tangent)
-        value = self.indicator_values(stress)
-        new = np.flatnonzero(~self.dem_mode & (value >= self.threshold))
+        if self.schedule is None:
+            value = self.indicator_values(stress)
+            new = np.flatnonzero(~self.dem_mode & (value >= self.threshold))
+        else:  # a control: 1 where the copied run had the point in DEM by this commit
+            value = ((self.schedule >= 0) & (self.schedule <= self.commits)).astype(float)
+            new = np.flatnonzero(~self.dem_mode & (value > 0))
         if new.size:
             self._promote(new, value)
         mode = self.dem_mode
@@ -235,7 +259,8 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
     def checkpoint_key(self) -> dict:
         return {"dem": self.dem.checkpoint_key(), "threshold": self.threshold, "indicator": self.indicator,
                 "out_of_range_weight": self.out_of_range_weight, "anchors": self.anchors.tolist(),
-                "correction": self.correction, "correction_length": self.correction_length}
+                "correction": self.correction, "correction_length": self.correction_length,
+                "schedule": None if self.schedule is None else self.schedule.tolist()}
 
     def get_state(self) -> dict[str, Any]:
         return {

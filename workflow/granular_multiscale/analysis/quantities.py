@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..tensors import voigt_to_tensor
+
 _SHEAR_WEIGHT = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0])
 
 
@@ -60,3 +62,24 @@ def equivalent_shear_strain(strain: np.ndarray) -> np.ndarray:
     """ε_s = sqrt(2/3 e:e) of the tensorial strain; [..., 6] -> [...]."""
     e = _deviator(strain)
     return np.sqrt(2.0 / 3.0 * np.sum(_SHEAR_WEIGHT * e**2, axis=-1))
+
+
+def lode_angle(stress: np.ndarray) -> np.ndarray:
+    """Lode angle θ in degrees, [..., 6] -> [...]: 0° in triaxial compression (one principal stress
+    more compressive than two equal others, σ tension positive), 60° in triaxial extension, 30°
+    in pure shear (the intermediate stress halfway), from cos 3θ = −(3√3/2) J3 / J2^(3/2); NaN
+    where the stress is isotropic."""
+    s = voigt_to_tensor(_deviator(stress))
+    j2 = 0.5 * np.einsum("...ij,...ij->...", s, s)
+    j3 = np.linalg.det(s)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.clip(-1.5 * np.sqrt(3.0) * j3 / j2**1.5, -1.0, 1.0)
+    return np.where(j2 > 0, np.degrees(np.arccos(c)) / 3.0, np.nan)
+
+
+def principal_axis_rotation(stress: np.ndarray, axis=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Angle in degrees between the most compressive principal stress direction and `axis` (the
+    vertical, the triaxial specimen's loading axis), [..., 6] -> [...] in [0°, 90°]."""
+    _, vectors = np.linalg.eigh(voigt_to_tensor(np.asarray(stress, dtype=float)))
+    major = vectors[..., :, 0]  # eigh sorts ascending: the first is the most compressive (tension +)
+    return np.degrees(np.arccos(np.clip(np.abs(major @ np.asarray(axis, dtype=float)), 0.0, 1.0)))

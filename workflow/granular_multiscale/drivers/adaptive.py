@@ -28,6 +28,16 @@ run's stress, DEM where the point is DEM) and (:func:`adaptive_variables`):
   ``dem_replay_particle_steps``, ``dem_point_fraction`` (DEM points / points, mean over the steps)
   and ``dem_points_final``.
 
+Zones the networks do not stand for: the networks learnt one material, so the points of a weak zone
+(the biaxial test's trigger) are anchors, DEM from step 0 on: their own RVEs, of the weak packing.
+
+Controls (``control``: ``linear_elastic`` or ``elastoplastic``, with ``schedule_from``): the same
+run with the networks replaced by that analytic model (``config[control]``; the elastoplastic
+model's defaults are fitted to the default-scale FEM–DEM Path1, ``materials/calibration.py``) and
+the promotions copied from the network run whose DEM answers ``schedule_from`` holds
+(:func:`dem_trajectories`, ``promoted_at``): the same DEM points at the same commits, so the same
+DEM work; only what answers elsewhere differs. ``adaptive_indicator`` is then ``schedule``.
+
 Checkpoint: that of every FEM run (``BoundaryValueProblem.run``), holding the set's state; the DEM
 points resume by replay, bit for bit.
 
@@ -47,11 +57,12 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from ..adaptive.material import AdaptiveMaterialPointSet, anchor_points
-from ..data import write_run
+from ..adaptive.material import SCHEDULE, AdaptiveMaterialPointSet, anchor_points
+from ..data import read_run, write_run
 from ..dem.subset import DemSubsetMaterialPointSet
 from ..fem.problem import BoundaryValueProblem
 from ..history import HIST, history_from_sequence
+from ..materials import make_material
 from ..tensors import COMP, TCOMP, tangent_to_upper
 from .fem_dem import dem_newton_config
 from .fem_ml import commits_of_steps, run_keeping_partial, spread_variables, surrogate_attributes, surrogate_material
@@ -78,11 +89,13 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
                  n_workers: int | None = None, logger: logging.Logger | None = None,
                  allow_partial: bool = False, dask_client=None,
                  trajectories: str | Path | None = None, problem: str = "triaxial",
-                 weak_packing: str | None = None) -> xr.Dataset:
+                 weak_packing: str | None = None, control: str | None = None,
+                 schedule_from: str | Path | None = None) -> xr.Dataset:
     """One adaptive run of load path `path_name` at `threshold` (validated config); returns the run
     Dataset and writes it to `output` (if given), and what its RVEs answered to `trajectories` (if
     given; :func:`dem_trajectories`). A step that does not converge raises ConvergenceError, or with
-    `allow_partial` keeps the converged steps (``completed = 0``)."""
+    `allow_partial` keeps the converged steps (``completed = 0``). With `control`, the networks are
+    replaced by that analytic model and the promotions copied from `schedule_from` (module docstring)."""
     logger = logger or logging.getLogger("granular_multiscale.drivers.adaptive")
     cfg = dem_newton_config(config, problem)
     bvp, load_path = problem_and_path(cfg, problem, path_name)
@@ -91,34 +104,48 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
     n = bvp.n_material_points
     workers = int(n_workers or cfg["dem"]["n_workers"])
     anchors, anchor_seed = configured_anchors(cfg, n)
+    weak = np.flatnonzero(bvp.zones() != 0)
+    if weak.size:
+        logger.info("adaptive %s: the %d points of the weak zone are anchors (the networks stand for one material)",
+                    problem, weak.size)
+        anchors = np.union1d(anchors, weak)
     t0 = time.perf_counter()
-    surrogate = surrogate_material(cfg, n, sigma_model, tangent_model, tangent, logger)
-    if section["indicator"] == "spread" and surrogate.ensemble_size == 1 and 0 < threshold < np.inf:
+    if control is None:
+        surrogate = surrogate_material(cfg, n, sigma_model, tangent_model, tangent, logger)
+        schedule = None
+    else:
+        surrogate = make_material(control, n, cfg)
+        schedule = promotion_schedule(schedule_from, n)
+    if control is None and section["indicator"] == "spread" and surrogate.ensemble_size == 1 and 0 < threshold < np.inf:
         raise ValueError(f"config key 'adaptive.indicator': 'spread' needs an ensemble (surrogate.ensemble_size >= 2); "
                          f"the one network of {sigma_model} has no spread and would never promote a point")
     dem = DemSubsetMaterialPointSet.from_config(cfg, n, packings, n_workers=workers, logger=logger,
                                                 dask_client=dask_client, assignment=assignment)
     material = AdaptiveMaterialPointSet(surrogate, dem, threshold, bvp.confining_pressure,
                                         section["indicator"], float(section["out_of_range_weight"]), anchors, logger,
-                                        section["correction"], float(section["correction_length"]))
+                                        section["correction"], float(section["correction_length"]), schedule)
     startup = time.perf_counter() - t0
+    answer = (f"NNσ {sigma_model} (ensemble of {surrogate.ensemble_size}, {tangent} tangent)" if control is None
+              else f"control: the {control} model, promotions copied from {schedule_from}")
     logger.info(
-        "adaptive FEM–DEM–ML %s %s: %d steps, %d material points, threshold %g on indicator %s, %d anchors; NNσ %s "
-        "(ensemble of %d, %s tangent); RVEs of %d spheres on %d %s workers (ready in %.1f s); Newton tolerance %.1e",
-        problem, path_name, load_path.n_steps, n, threshold, section["indicator"], anchors.size, sigma_model,
-        surrogate.ensemble_size, tangent, int(dem.n_spheres.max()), workers, cfg["dem"]["executor"], startup,
-        cfg["newton"]["tolerance"],
+        "adaptive FEM–DEM–ML %s %s: %d steps, %d material points, threshold %g on indicator %s, %d anchors; %s; "
+        "RVEs of %d spheres on %d %s workers (ready in %.1f s); Newton tolerance %.1e",
+        problem, path_name, load_path.n_steps, n, threshold, material.indicator, anchors.size, answer,
+        int(dem.n_spheres.max()), workers, cfg["dem"]["executor"], startup, cfg["newton"]["tolerance"],
     )
     with material:
         ds = run_keeping_partial(bvp, material, load_path, checkpoint, logger, True, allow_partial,
                                  f"adaptive {problem} {path_name} at threshold {threshold:g}")
-    ds = ds.assign(spread_variables(surrogate, ds))
+    if control is None:
+        ds = ds.assign(spread_variables(surrogate, ds))
+        ds.attrs.update(surrogate_attributes(surrogate, sigma_model, tangent_model))
+    else:
+        ds.attrs.update({"adaptive_control": control, "adaptive_schedule_from": str(schedule_from)})
     ds = ds.assign(adaptive_variables(material, ds))
-    ds.attrs.update(surrogate_attributes(surrogate, sigma_model, tangent_model))
     trial, replay = float(ds["particle_steps"].sum()), float(ds["replay_particle_steps"].sum())
     ds.attrs.update({
         "adaptive_threshold": float(threshold),
-        "adaptive_indicator": section["indicator"],
+        "adaptive_indicator": material.indicator,
         "adaptive_out_of_range_weight": float(section["out_of_range_weight"]),
         "adaptive_anchor_fraction": float(section["anchor_fraction"]),
         "adaptive_anchors": anchors.size,
@@ -150,6 +177,20 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
         write_run(ds, output, config)
         logger.info("wrote %s", output)
     return ds
+
+
+def promotion_schedule(trajectories: str | Path, n_points: int) -> np.ndarray:
+    """[n_points] the commit at which each point of the run whose DEM answers `trajectories` holds
+    turned DEM (``promoted_at``; −1: never), the promotions a control run copies."""
+    if trajectories is None:
+        raise ValueError("a control run copies the promotions of a network run: give its DEM answers (schedule_from)")
+    points = read_run(trajectories, required=("promoted_at",))
+    if int(points.attrs.get("n_points", -1)) != n_points:
+        raise ValueError(f"{trajectories}: the DEM answers of a run with {points.attrs.get('n_points')} points, "
+                         f"this run has {n_points}")
+    schedule = np.full(n_points, -1)
+    schedule[points["gp"].values.astype(int)] = points["promoted_at"].values.astype(int)
+    return schedule
 
 
 def dem_trajectories(material: AdaptiveMaterialPointSet, problem: BoundaryValueProblem, run: str) -> xr.Dataset:

@@ -1,0 +1,129 @@
+# The surrogate on the problems beyond the triaxial specimen, with the pipeline's networks (trained
+# on triaxial and RVE-path data only: the problems' own runs validate, docs/problems.md):
+#
+#   problem_fem_ml            {OUT}/{problem}/fem_ml/{case}.h5: FEM–ML; a run that stops keeps its
+#                             converged steps (completed = 0) and the table says where it stopped
+#   problem_adaptive          {OUT}/{problem}/adaptive_t<threshold>/{case}.h5 (adaptive.problem_threshold;
+#                             the weak zone's points are anchors) and its DEM answers under dem_points/
+#   problem_adaptive_control  {OUT}/{problem}/control_{control}_t<threshold>/{case}.h5 for each model of
+#                             adaptive.controls: the networks replaced by that analytic model, the DEM
+#                             points and their promotion steps copied from problem_adaptive's run
+#   problem_surrogate_products  tables/{problem}/surrogate_{case}.{csv,html} and the figures
+#                             {problem}/surrogate_response_{case}.png, {problem}/error_map_{case}.png:
+#                             every run against the reference (force, volumetric strain, band, stress
+#                             error inside and outside the band or under the footing, DEM share, time)
+#   table_visited_states      tables/visited_states.{csv,html}: the range of states (p, q, Lode angle,
+#                             principal-axis rotation, strains) of the training sources and of each
+#                             problem's reference run
+# The adaptive runs and their controls run in `all` with adaptive.report and a DEM reference.
+
+CAT_PROBLEMS_SURROGATE = "8 The surrogate on the problems"
+
+
+use rule fem_ml as problem_fem_ml with:
+    output:
+        L.problem_run("{problem}", "fem_ml", "{case}"),
+    log:
+        L.log("{problem}/fem_ml/{case}"),
+    benchmark:
+        L.benchmark("{problem}/fem_ml/{case}")
+    params:
+        tangent=config["surrogate"]["tangent"],
+        depends=lambda wc: PLAN.problem_surrogate_definition(wc.problem),
+        allow_partial=True,
+        problem=lambda wc: wc.problem,
+        path_name=lambda wc: wc.case,
+
+
+use rule adaptive as problem_adaptive with:
+    input:
+        packings=PLAN.packings,
+        weak_packing=lambda wc: PLAN.weak_packing_input(wc.problem),
+        sigma=L.model("sigma"),
+        tangent=L.model("tangent"),
+    output:
+        run=L.problem_run("{problem}", PLAN.problem_adaptive_method, "{case}"),
+        trajectories=L.problem_dem_points("{problem}", PLAN.problem_adaptive_method, "{case}"),
+    log:
+        L.log(f"{{problem}}/{PLAN.problem_adaptive_method}/{{case}}"),
+    benchmark:
+        L.benchmark(f"{{problem}}/{PLAN.problem_adaptive_method}/{{case}}")
+    params:
+        threshold=PLAN.problem_threshold,
+        checkpoint=L.checkpoint(f"{{problem}}/{PLAN.problem_adaptive_method}/{{case}}"),
+        tangent=config["surrogate"]["tangent"],
+        allow_partial=True,
+        depends=lambda wc: PLAN.problem_surrogate_definition(wc.problem),
+        problem=lambda wc: wc.problem,
+        path_name=lambda wc: wc.case,
+
+
+use rule adaptive as problem_adaptive_control with:
+    input:
+        packings=PLAN.packings,
+        weak_packing=lambda wc: PLAN.weak_packing_input(wc.problem),
+        schedule_from=L.problem_dem_points("{problem}", PLAN.problem_adaptive_method, "{case}"),
+    output:
+        run=L.problem_run("{problem}", PLAN.control_method("{control}"), "{case}"),
+        trajectories=L.problem_dem_points("{problem}", PLAN.control_method("{control}"), "{case}"),
+    log:
+        L.log(f"{{problem}}/{PLAN.control_method('{control}')}/{{case}}"),
+    benchmark:
+        L.benchmark(f"{{problem}}/{PLAN.control_method('{control}')}/{{case}}")
+    params:
+        threshold=PLAN.problem_threshold,
+        checkpoint=L.checkpoint(f"{{problem}}/{PLAN.control_method('{control}')}/{{case}}"),
+        tangent=config["surrogate"]["tangent"],
+        allow_partial=True,
+        depends=lambda wc: {**PLAN.problem_surrogate_definition(wc.problem), "model": config[wc.control]},
+        problem=lambda wc: wc.problem,
+        path_name=lambda wc: wc.case,
+        control=lambda wc: wc.control,
+    wildcard_constraints:
+        control="|".join(PLAN.controls) or "no-control",
+
+
+rule problem_surrogate_products:
+    input:
+        runs=lambda wc: list(PLAN.problem_comparison(wc.problem, wc.case).values()),
+    output:
+        csv=report(L.table("{problem}/surrogate_{case}.csv"), caption="../report/problem_surrogate.rst",
+                   category=CAT_PROBLEMS_SURROGATE, subcategory="{problem}"),
+        html=report(L.table("{problem}/surrogate_{case}.html"), caption="../report/problem_surrogate.rst",
+                    category=CAT_PROBLEMS_SURROGATE, subcategory="{problem}"),
+        response=report(L.figure("{problem}/surrogate_response_{case}.png"),
+                        caption="../report/problem_surrogate_response.rst", category=CAT_PROBLEMS_SURROGATE,
+                        subcategory="{problem}"),
+        error_map=report(L.figure("{problem}/error_map_{case}.png"), caption="../report/problem_error_map.rst",
+                         category=CAT_PROBLEMS_SURROGATE, subcategory="{problem}"),
+    log:
+        L.log("analysis/{problem}/surrogate_{case}"),
+    benchmark:
+        L.benchmark("analysis/{problem}/surrogate_{case}")
+    params:
+        kind="surrogate",
+        labels=lambda wc: list(PLAN.problem_comparison(wc.problem, wc.case)),
+        title=lambda wc: f"{PROBLEM_LABEL[wc.problem]}, path {wc.case}",
+        settings=config["analysis"],
+    script:
+        "../../scripts/problem_products.py"
+
+
+rule table_visited_states:
+    input:
+        runs=list(PLAN.visited_states_runs().values()),
+    output:
+        csv=report(L.table("visited_states.csv"), caption="../report/visited_states.rst",
+                   category=CAT_PROBLEMS_SURROGATE, subcategory="States the material points visit"),
+        html=report(L.table("visited_states.html"), caption="../report/visited_states.rst",
+                    category=CAT_PROBLEMS_SURROGATE, subcategory="States the material points visit"),
+    log:
+        L.log("analysis/table_visited_states"),
+    benchmark:
+        L.benchmark("analysis/table_visited_states")
+    params:
+        kind="visited_states",
+        labels=list(PLAN.visited_states_runs()),
+        pressure=config["specimen"]["confining_pressure"],
+    script:
+        "../../scripts/problem_products.py"
