@@ -145,6 +145,13 @@ def test_residual_correction_weights():
     np.testing.assert_allclose(halfway[0], residual[:2].mean(axis=0), rtol=1e-12)
     far = residual_correction(np.array([[100.0, 0.0]]), two, residual[:2], 0.01)
     np.testing.assert_array_equal(far[0], residual[1])
+    # local: at a DEM point's state its full residual, a few widths from every DEM state almost nothing
+    at = residual_correction(two[:1], two, residual[:2], 0.2, local=True)
+    np.testing.assert_allclose(at[0], (residual[0] + np.exp(-12.5) * residual[1]) / (1 + np.exp(-12.5)), rtol=1e-12)
+    fading = [np.abs(residual_correction(np.array([[1.0, d]]), two, residual[:2], 0.2, local=True)).max()
+              for d in (0.2, 0.4, 0.6, 0.8)]
+    assert np.all(np.diff(fading) < 0) and fading[-1] < 1e-3 * np.abs(residual[1]).max()
+    assert np.abs(residual_correction(np.array([[100.0, 0.0]]), two, residual[:2], 0.01, local=True)).max() == 0
 
 
 def test_anchor_seed_draws_other_anchors_of_the_same_share(tmp_path):

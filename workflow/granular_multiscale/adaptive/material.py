@@ -65,7 +65,9 @@ the residual of the DEM points in the most similar states, a smooth function of 
 dependence on the DEM points' strains is left out of the tangent (it couples points), as is its
 dependence on the point's own strain (the weights change slowly); Newton converges on the
 residual all the same. No DEM point, or no surrogate point, leaves nothing to correct: threshold
-∞ is still FEM–ML and threshold 0 FEM–DEM, bit for bit. Anchors (``anchor_fraction``) make the
+∞ is still FEM–ML and threshold 0 FEM–DEM, bit for bit. ``correction: local_kernel`` divides the
+kernel values by max(1, their sum) instead of their sum: the correction fades to zero at a point
+whose state is a few widths from every DEM point's, instead of carrying the nearest residual. Anchors (``anchor_fraction``) make the
 DEM points that measure the residual from step 0 on, without replay.
 
 Recorded (:meth:`step_info` per commit, :attr:`commit_log`, :attr:`indicator_log`,
@@ -101,20 +103,29 @@ from ..surrogate.material import SurrogateMaterial, relative_spread
 INDICATORS = ("spread", "out_of_range", "max")
 #: the indicator of a control run: the promotions of another run, copied
 SCHEDULE = "schedule"
-CORRECTIONS = ("none", "kernel")
+CORRECTIONS = ("none", "kernel", "local_kernel")
 STATE_FORMAT = "adaptive-state-v1"
 
 
 def residual_correction(x_surrogate: np.ndarray, x_dem: np.ndarray, residual: np.ndarray,
-                        length: float) -> np.ndarray:
+                        length: float, local: bool = False) -> np.ndarray:
     """[n_s, 6] the DEM points' residual carried to the surrogate points: Nadaraya–Watson weights of a
     Gaussian kernel of width `length` between the inputs x_surrogate [n_s, f] and x_dem [m, f] (in
     units of the training range), applied to residual [m, 6]. The weights of a point sum to 1: as
-    `length` → 0 the residual of its nearest DEM point, `length` = inf the mean residual."""
+    `length` → 0 the residual of its nearest DEM point, `length` = inf the mean residual.
+
+    With `local`, the kernel values k = exp(−d²/2ℓ²) are divided by max(1, Σk) instead of Σk: a
+    surrogate point at a DEM point's state gets its full residual, one whose nearest DEM state is
+    a few widths away almost nothing (the correction fades to zero where no DEM point is in a
+    similar state, instead of carrying the nearest residual however far it is)."""
     if np.isinf(length):
         return np.broadcast_to(residual.mean(axis=0), (x_surrogate.shape[0], residual.shape[1])).copy()
     d2 = ((x_surrogate[:, None, :] - x_dem[None, :, :]) ** 2).sum(axis=-1)
     logits = -d2 / (2.0 * length**2)
+    if local:
+        weights = np.exp(logits)
+        weights /= np.maximum(weights.sum(axis=1, keepdims=True), 1.0)
+        return weights @ residual
     weights = np.exp(logits - logits.max(axis=1, keepdims=True))  # the nearest gets exp(0): no underflow to 0/0
     weights /= weights.sum(axis=1, keepdims=True)
     return weights @ residual
@@ -215,9 +226,10 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
         self._correction_now = 0.0
         if mode.any():
             dem_stress, dem_tangent = self.dem.evaluate(strain, need_tangent=need_tangent)
-            if self.correction == "kernel" and not mode.all():
+            if self.correction != "none" and not mode.all():
                 x = self.surrogate.trial_scaled_features()
-                shift = residual_correction(x[~mode], x[mode], dem_stress[mode] - stress[mode], self.correction_length)
+                shift = residual_correction(x[~mode], x[mode], dem_stress[mode] - stress[mode], self.correction_length,
+                                            local=self.correction == "local_kernel")
                 stress[~mode] += shift
                 self._correction_now = float(np.linalg.norm(shift, axis=1).mean())
             stress[mode] = dem_stress[mode]
