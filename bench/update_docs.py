@@ -135,7 +135,45 @@ def render_fem_ml(record: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-RENDERERS = {"headline": render_headline, "rules": render_rules, "fem_ml": render_fem_ml}
+def _number(value, digits: int = 2) -> str:
+    return "–" if value is None or value != value else f"{value:.{digits}f}"
+
+
+def render_problems(record: dict) -> str:
+    """Every method on the biaxial test and the footing against their FEM–DEM runs (one table each)."""
+    lines = []
+    for problem, title in (("biaxial", "Biaxial test"), ("footing", "Strip footing")):
+        rows = rows_of(record, f"{problem}/surrogate_{problem}.csv")
+        zone = "in the band" if problem == "biaxial" else "under the footing"
+        rest = "outside the band" if problem == "biaxial" else "elsewhere"
+        band = problem == "biaxial"
+        lines += [f"{title}, {run_label(record)}, against {rows[0]['run']} ({rows[0]['wall time (s)']:.0f} s; "
+                  f"{rows[0][f'Gauss points {zone}']} of its Gauss points {zone}):", "",
+                  "| run | steps | force max error, up to / after the peak (% of peak) | vol. strain max error (% of peak) "
+                  f"| σ MAE {zone} / {rest} (kPa) |" + (" band inclination, onset (Δ to the reference) |" if band else "")
+                  + " spread–error ρ | DEM particle-steps | DEM points at the end (% " + zone + ") | wall |",
+                  "| --- | --- | --- | --- | --- |" + (" --- |" if band else "") + " --- | --- | --- | --- |"]
+        for row in rows[1:]:
+            dem_points = row.get("DEM points at the end")
+            where = row.get(f"DEM points at the end {zone} (%)")
+            line = (f"| {row['run']} | {row['steps reached']} | {_number(row['force: up to the peak (%)'])} / "
+                    f"{_number(row['force: after the peak (%)'])} | "
+                    f"{_number(row['volumetric strain: largest error (% of its peak)'], 1)} | "
+                    f"{_number(row[f'stress MAE {zone} (kPa)'], 1)} / {_number(row[f'stress MAE {rest} (kPa)'], 1)} |")
+            if band:
+                line += (f" {_number(row['band inclination (deg)'], 1)}° ({row['inclination − reference (deg)']:+.1f}°), "
+                         f"{_number(row['band onset: axial strain (%)'])} % ({_number(row['onset − reference (% strain)'])}) |")
+            dem = row["DEM particle-steps (% of the reference's)"]
+            line += (f" {_number(row['spread–error rank correlation after the peak'])} | "
+                     f"{'–' if dem != dem or not dem else f'{dem:.1f} %'} | "
+                     f"{'–' if dem_points is None or dem_points != dem_points else f'{dem_points:.0f} ({_number(where, 0)} %)'} | "
+                     f"{row['wall time (s)']:.1f} s |")
+            lines.append(line)
+        lines.append("")
+    return "\n".join(lines)
+
+
+RENDERERS = {"headline": render_headline, "rules": render_rules, "fem_ml": render_fem_ml, "problems": render_problems}
 
 
 def rewrite(text: str, document: str) -> str:

@@ -8,6 +8,7 @@ from granular_multiscale.analysis.tables import write_csv
 from granular_multiscale.atomic import atomic_path
 from granular_multiscale.data import read_run
 from granular_multiscale.runlog import setup_logging, timed_rule
+from granular_multiscale.surrogate import dataset
 
 #: the field maps of each problem
 FIELDS = {"biaxial": ["shear_strain", "volumetric_strain", "mean_stress"],
@@ -65,7 +66,9 @@ def main(sm) -> None:
                                                dpi=dpi)
         elif p.kind == "visited_states":
             runs = {label: read_run(f, required=("strain", "stress")) for label, f in zip(p.labels, sm.input.runs)}
-            _write_table(problem_surrogate.state_ranges(runs, float(p.pressure)), sm.output, logger)
+            history = dataset.history_selection(p.history)
+            training = problem_surrogate.TrainingStates(dataset.features(dataset.read_dataset(sm.input.dataset), history))
+            _write_table(problem_surrogate.state_ranges(runs, float(p.pressure), training, history), sm.output, logger)
         elif p.kind == "mesh_study":
             runs = _runs(p.labels, sm.input.runs)
             _write_table(problems.mesh_table(runs), sm.output, logger)

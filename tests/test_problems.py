@@ -171,6 +171,21 @@ def test_comparison_table_measures_errors_in_the_band_and_under_the_footing(tmp_
     assert np.all((xz[~under, 0] > 0.05) | (depth[~under] > 0.1))
 
 
+def test_an_unseen_combination_of_features_is_off_the_training_data():
+    """Training states in two corners of the unit square: a state inside both features' ranges but
+    in the empty corner is off the data (a per-feature box would pass it), one among them is not;
+    of the training states themselves at most 1 % are off (the quantile of their leave-one-out
+    distances; queried as they are, each counts itself among its neighbours)."""
+    from granular_multiscale.analysis.problem_surrogate import NOVELTY_QUANTILE, TrainingStates
+
+    rng = np.random.default_rng(0)
+    train = np.concatenate([rng.uniform(0.0, 0.1, (500, 2)), rng.uniform(0.9, 1.0, (500, 2))])
+    states = TrainingStates(train)
+    assert states.off(np.array([0.05, 0.95])) and not states.off(np.array([0.05, 0.05]))
+    assert 0 < states.off(train).mean() <= 1 - NOVELTY_QUANTILE + 1e-12
+    np.testing.assert_array_equal(states.off(np.array([[[0.95, 0.05], [0.95, 0.95]]])), [[True, False]])
+
+
 def plt_image_has_colour(path) -> bool:
     """The PNG was drawn: more than a few distinct colours."""
     import matplotlib.image as mpimg

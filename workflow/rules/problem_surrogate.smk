@@ -14,7 +14,8 @@
 #                             error inside and outside the band or under the footing, DEM share, time)
 #   table_visited_states      tables/visited_states.{csv,html}: the range of states (p, q, Lode angle,
 #                             principal-axis rotation, strains) of the training sources and of each
-#                             problem's reference run
+#                             problem's reference run, and the share of its states off the networks'
+#                             training data (k-nearest-neighbour distance in their inputs)
 # The adaptive runs and their controls run in `all` with adaptive.report and a DEM reference.
 
 CAT_PROBLEMS_SURROGATE = "8 The surrogate on the problems"
@@ -112,6 +113,7 @@ rule problem_surrogate_products:
 rule table_visited_states:
     input:
         runs=list(PLAN.visited_states_runs().values()),
+        dataset=L.dataset("train"),
     output:
         csv=report(L.table("visited_states.csv"), caption="../report/visited_states.rst",
                    category=CAT_PROBLEMS_SURROGATE, subcategory="States the material points visit"),
@@ -125,5 +127,6 @@ rule table_visited_states:
         kind="visited_states",
         labels=list(PLAN.visited_states_runs()),
         pressure=config["specimen"]["confining_pressure"],
+        history=config["surrogate"]["history_variables"],
     script:
         "../../scripts/problem_products.py"

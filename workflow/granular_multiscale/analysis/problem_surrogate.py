@@ -39,6 +39,7 @@ import pandas as pd  # noqa: E402
 import xarray as xr  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 
+from ..history import HIST, history_from_sequence  # noqa: E402
 from . import quantities as qty  # noqa: E402
 from .bands import band_metrics  # noqa: E402
 from .calibration import spearman  # noqa: E402
@@ -201,13 +202,16 @@ def _states(run: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
     return stress, strain
 
 
-def state_ranges(runs: Mapping[str, xr.Dataset], confining_pressure: float) -> pd.DataFrame:
+def state_ranges(runs: Mapping[str, xr.Dataset], confining_pressure: float,
+                 training: TrainingStates | None = None, history: tuple[str, ...] = ()) -> pd.DataFrame:
     """One row per run (training sources and validation runs alike): the range of the states its
     material points visited, 1st to 99th percentile over every (step, point): mean stress p/p0,
     deviator q/p0, Lode angle (0° triaxial compression, 30° shear, 60° extension; where q > 0.1 p0),
     rotation of the major principal stress from the vertical (the triaxial loading axis), the
     equivalent shear strain and the volumetric strain. A problem whose states leave the training
-    sources' ranges asks the networks to extrapolate."""
+    sources' ranges asks the networks to extrapolate. With `training` (the networks' training
+    states, their `history` variables), the share of the run's states off the training data: an
+    unseen combination of features counts even where each feature is inside its range."""
     rows = []
     for label, run in runs.items():
         stress, strain = _states(run)
@@ -221,6 +225,11 @@ def state_ranges(runs: Mapping[str, xr.Dataset], confining_pressure: float) -> p
             return np.nanpercentile(v, [1, 99]) if np.isfinite(v).any() else (np.nan, np.nan)
 
         row = {"run": label, "states": int(p.size)}
+        if training is not None:
+            x = run_features(run, history).reshape(-1, 6 + len(history))
+            if "valid" in run:
+                x = x[run["valid"].transpose("step", "gp").values.astype(bool).ravel()]
+            row[f"off the training data (%, {training.k}-NN)"] = 100 * float(training.off(x).mean())
         for name, values in (("p/p0", p), ("q/p0", q), ("Lode angle (deg)", lode),
                              ("principal-axis rotation (deg)", rotation), ("shear strain ε_s (%)", shear),
                              ("volumetric strain (%)", volumetric)):
@@ -228,3 +237,48 @@ def state_ranges(runs: Mapping[str, xr.Dataset], confining_pressure: float) -> p
             row[f"{name}: 1 %"], row[f"{name}: 99 %"] = float(lo), float(hi)
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+# ------------------------------------------------------------------------------ off the training data
+NEIGHBOURS = 5
+#: a state is off the training data when its k-th neighbour is farther than this quantile of the
+#: training states' own (leave-one-out) k-th neighbour distances
+NOVELTY_QUANTILE = 0.99
+
+
+def run_features(run: xr.Dataset, history: tuple[str, ...]) -> np.ndarray:
+    """[steps, n_gp, 6 + len(history)] the networks' inputs along a run's converged strains: the
+    strain and the history variables named (``history.HIST``), accumulated as FEM–ML does."""
+    strain = _values(run, "strain")
+    if not history:
+        return strain
+    values = history_from_sequence(strain)[..., [HIST.index(h) for h in history]]
+    return np.concatenate([strain, values], axis=-1)
+
+
+class TrainingStates:
+    """The training samples' inputs, each scaled by its training range, and the distance to the k-th
+    nearest training state that counts as inside the data (:data:`NOVELTY_QUANTILE` of the training
+    states' own leave-one-out distances). A box of per-feature ranges misses a combination of
+    features that no training state has; a distance to the training states does not."""
+
+    def __init__(self, train_features: np.ndarray, k: int = NEIGHBOURS):
+        from scipy.spatial import cKDTree
+
+        x = np.asarray(train_features, dtype=float)
+        self.lo = x.min(axis=0)
+        self.span = np.where(np.ptp(x, axis=0) > 0, np.ptp(x, axis=0), 1.0)
+        self.k = int(k)
+        self.tree = cKDTree((x - self.lo) / self.span)
+        own, _ = self.tree.query(self.tree.data, k=self.k + 1)  # the first neighbour is the state itself
+        self.radius = float(np.quantile(own[:, -1], NOVELTY_QUANTILE))
+
+    def distance(self, features: np.ndarray) -> np.ndarray:
+        """[...] the distance of each state [..., f] to its k-th nearest training state (training range units)."""
+        shape = features.shape[:-1]
+        d, _ = self.tree.query(((features - self.lo) / self.span).reshape(-1, features.shape[-1]), k=self.k)
+        return d[:, -1].reshape(shape)
+
+    def off(self, features: np.ndarray) -> np.ndarray:
+        """[...] True where a state is farther from the training states than :attr:`radius`."""
+        return self.distance(features) > self.radius
