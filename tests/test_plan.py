@@ -63,15 +63,54 @@ def test_labels_and_run_sets_of_the_products():
     timing = plan.timing_runs("path2")
     assert timing["FEM–ML (nn tangent)"] == "out/fem_ml_nn/path2.h5"
     assert timing["FEM–DEM (100 spheres)"] == "out/fem_dem_n100/path2.h5"
-    # adaptive.report: the adaptive runs join, from the highest threshold to the lowest
-    assert list(timing)[-2:] == ["adaptive FEM–DEM–ML, threshold 0.02", "adaptive FEM–DEM–ML, threshold 0.01"]
-    assert plan.speed_curve("path2") == ["FEM–ML (autodiff tangent)", *list(timing)[-2:], "FEM–DEM (400 spheres)"]
+    # adaptive.report: the adaptive runs join, from the highest threshold to the lowest, then their controls
+    adaptive = ["adaptive FEM–DEM–ML, threshold 0.02", "adaptive FEM–DEM–ML, threshold 0.01"]
+    assert list(timing)[-4:] == [*adaptive, *plan.control_runs("path2")]
+    assert plan.control_runs("path2") == {
+        "control: elastoplastic model fitted to Path1 + the DEM points of threshold 0.02": "out/adaptive/t0.02_elastoplastic/path2.h5",
+        "control: elastoplastic model fitted to Path1 + the DEM points of threshold 0.01": "out/adaptive/t0.01_elastoplastic/path2.h5"}
+    assert plan.speed_curve("path2") == ["FEM–ML (autodiff tangent)", *adaptive, "FEM–DEM (400 spheres)"]
     assert plan.adaptive_run_files() == ["out/adaptive/t0.02/path2.h5", "out/adaptive/t0.01/path2.h5"]
     elastoplastic = plan_of("config.yaml", reference_material="elastoplastic")
     assert elastoplastic.reference_run("path2") == "out/fem_elastoplastic/path2.h5"
     assert elastoplastic.speed_curve("path2") == []  # adaptive runs need DEM
     assert "FEM–DEM (100 spheres)" not in elastoplastic.timing_runs("path2")
     assert path_label("path2") == "Path2"
+
+
+def test_the_surrogate_on_the_problems_beside_its_controls():
+    """Default scale: per problem the reference, FEM–ML, the analytic model alone, the adaptive run and its
+    control, and the products of each; the tiny scale (no adaptive report) keeps the runs without DEM."""
+    plan = plan_of("config.yaml")
+    assert list(plan.problem_comparison("biaxial", "biaxial").items()) == [
+        ("FEM–DEM (400 spheres)", "out/biaxial/fem_dem/biaxial.h5"),
+        ("FEM–ML (autodiff tangent)", "out/biaxial/fem_ml/biaxial.h5"),
+        ("FEM, elastoplastic model fitted to Path1 (no networks)", "out/biaxial/fem_elastoplastic/biaxial.h5"),
+        ("adaptive FEM–DEM–ML, threshold 0.02", "out/biaxial/adaptive_t0.02/biaxial.h5"),
+        ("control: elastoplastic model fitted to Path1 + the same DEM points",
+         "out/biaxial/control_elastoplastic_t0.02/biaxial.h5")]
+    assert plan.layout.problem_dem_points("footing", plan.problem_adaptive_method, "footing") == \
+        "out/footing/adaptive_t0.02/dem_points/footing.h5"
+    targets = plan.all_targets()
+    assert {"out/tables/biaxial/surrogate_biaxial.csv", "out/tables/footing/surrogate_footing.csv",
+            "out/tables/visited_states.csv"} <= set(targets)
+    states = plan.visited_states_runs()
+    assert list(states.values()) == ["out/fem_dem/path1.h5", "out/rve_paths/designed.h5", "out/rve_paths/long.h5",
+                                     "out/fem_dem/path2.h5", "out/biaxial/fem_dem/biaxial.h5",
+                                     "out/footing/fem_dem/footing.h5"]
+    # what an adaptive problem run depends on: the DEM settings and the adaptive section, not the thresholds of Path2
+    assert plan.problem_surrogate_definition("biaxial")["dem"] == plan.run_definition
+    assert plan_of("config.yaml", adaptive={"thresholds": [0.5]}).problem_surrogate_definition("biaxial") == \
+        plan.problem_surrogate_definition("biaxial")
+    both = plan_of("config.yaml", adaptive={"report": True, "controls": ["linear_elastic", "elastoplastic"]})
+    assert list(both.problem_comparison("footing", "footing"))[-2:] == [
+        "control: elastic model + the same DEM points", "control: elastoplastic model fitted to Path1 + the same DEM points"]
+    tiny = plan_of("config.yaml", "tiny.yaml")
+    assert list(tiny.problem_comparison("footing", "footing").values()) == [
+        "out/footing/fem_dem/footing.h5", "out/footing/fem_ml/footing.h5", "out/footing/fem_elastoplastic/footing.h5"]
+    elastoplastic = plan_of("config.yaml", reference_material="elastoplastic")
+    assert list(elastoplastic.problem_comparison("biaxial", "biaxial").values()) == [
+        "out/biaxial/fem_elastoplastic/biaxial.h5", "out/biaxial/fem_ml/biaxial.h5"]
 
 
 def test_rerun_triggers_hold_what_changes_a_result_and_nothing_else():
