@@ -81,10 +81,16 @@ def render_headline(record: dict) -> str:
         f"FEM–DEM's {h['reference_wall_time_s']:.0f} s); making the surrogate took {h['surrogate_cost_s']:.0f} s "
         f"and pays back after {h['break_even_runs']} runs | {label}, side by side |",
     ]
+    accuracy = rows_of(record, "accuracy.csv")
     for row in adaptive_rows(record):
         threshold = row["method"].split(", ", 1)[-1]
+        controls = [r for r in accuracy if str(r["method"]).startswith("control") and
+                    str(r["method"]).endswith(f"threshold {threshold.split()[-1]}")]
+        control = "".join(f"; its control (the elastoplastic model at the same DEM points) "
+                          f"{r['top_force_max_rel_pct']:.2f} %" for r in controls)
         lines.append(f"| adaptive FEM–DEM–ML, Path2, {threshold} | {row['error']:.2f} % at "
-                     f"{100 * row['dem_work']:.1f} % of FEM–DEM's DEM particle-steps, {row['wall_s']:.0f} s | {label} |")
+                     f"{100 * row['dem_work']:.1f} % of FEM–DEM's DEM particle-steps, {row['wall_s']:.0f} s{control} "
+                     f"| {label} |")
     band = pick(rows_of(record, "biaxial_bands.csv"), run="biaxial")
     lines.append(
         f"| biaxial test ({band['mesh'].replace('x', ' × ')} quad8, {band['Gauss points']} RVEs) | force peak at "
@@ -97,7 +103,27 @@ def render_headline(record: dict) -> str:
         f"s/B = {footing['settlement at the end s/B (%)']:.0f} %, still rising "
         f"({footing['pressure gain over the last 20 % of the settlement (%)']:.0f} % over the last fifth); "
         f"FEM–DEM {rules['footing/fem_dem/footing']:.0f} s | {label} |")
+    lines += problem_headline_rows(record)
     return "\n".join(lines) + "\n"
+
+
+def problem_headline_rows(record: dict) -> list[str]:
+    """FEM–ML and the adaptive run beside its control on each problem (the headline's last rows)."""
+    label, lines = run_label(record), []
+    for problem, title in (("biaxial", "biaxial test"), ("footing", "strip footing")):
+        rows = {r["run"]: r for r in rows_of(record, f"{problem}/surrogate_{problem}.csv")}
+        ml = next(r for name, r in rows.items() if name.startswith("FEM–ML"))
+        text = (f"FEM–ML {ml['force: largest error (% of peak)']:.1f} % (steps {ml['steps reached']})")
+        adaptive = [r for name, r in rows.items() if name.startswith("adaptive")]
+        control = [r for name, r in rows.items() if name.startswith("control")]
+        if adaptive and control:
+            a, c = adaptive[0], control[0]
+            share = a["DEM particle-steps (% of the reference's)"]
+            text += (f"; adaptive {a['force: largest error (% of peak)']:.1f} % at {share:.0f} % of the DEM work, its control "
+                     f"(elastoplastic model, the same DEM points) {c['force: largest error (% of peak)']:.1f} %")
+        lines.append(f"| the surrogate on the {title} (largest force error over the path, % of the peak) | {text} "
+                     f"| {label}, networks that never saw it |")
+    return lines
 
 
 def render_rules(record: dict) -> str:

@@ -398,6 +398,15 @@ def test_rule_writes_the_run_its_log_and_benchmark(setup, between, tmp_path):
     written = read_run(target)
     assert written.attrs["adaptive_threshold"] == threshold
     assert_same(written, run, SAME + ("point_mode", "promotions", "replay_particle_steps"))
+    # its control (rule adaptive_control): the elastoplastic model with the run's DEM points
+    control = out / "adaptive" / f"t{threshold:g}_elastoplastic" / "p.h5"
+    result = subprocess.run([str(snakemake), "-j2", "--configfile", str(tmp_path / "config.yaml"), "--allowed-rules",
+                             "adaptive_control", "--", str(control)], cwd=ROOT, capture_output=True, text=True,
+                            timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    control = read_run(control)
+    assert control.attrs["adaptive_control"] == "elastoplastic" and control.attrs["adaptive_threshold"] == threshold
+    assert np.array_equal(control.point_mode.values, run.point_mode.values)
     dem_points = read_run(target.parent / "dem_points" / "p.h5", required=DEM_TRAJECTORY_VARIABLES)
     assert_same(dem_points, points, ("strain", "stress", "tangent", "valid", "promoted_at"))
     log = (out / "logs" / "adaptive" / f"t{threshold:g}" / "p.log").read_text()
