@@ -15,8 +15,10 @@ here are taken where the points differ:
 * **volumetric strain**: the largest |εv − εv_ref| in % of the reference's largest |εv|;
 * **stress MAE**: the mean over steps, points and the six components of |σ − σ_ref| (kPa);
 * **rank correlation**: per step after the reference's peak, Spearman's ρ between a run's relative
-  ensemble spread and its stress error ‖σ − σ_ref‖ over the Gauss points; the median over those
-  steps (does the spread say *where* the networks are wrong?);
+  ensemble spread and its stress error ‖σ − σ_ref‖ over the Gauss points where the networks answered
+  (all in FEM–ML, the surrogate points of an adaptive run); the median over those
+  steps (does the spread say *where* the networks are wrong?), and the median of error / spread
+  over every step and point (about 1 when the spread is the size of the error);
 * **DEM work**: the run's DEM particle-steps (trials and replays) over the reference's, and for an
   adaptive run the share of its DEM points at the end that lie in the band (or under the footing).
 
@@ -82,6 +84,13 @@ def stress_errors(reference: xr.Dataset, run: xr.Dataset) -> np.ndarray:
     return stress_norm(_values(run, "stress")[:n] - _values(reference, "stress")[:n])
 
 
+def _networks_answered(run: xr.Dataset) -> np.ndarray:
+    """[steps, n_gp] where the networks answered (all points of FEM–ML; the surrogate points of an adaptive run)."""
+    if "point_mode" in run:
+        return run["point_mode"].transpose("step", "gp").values == 0
+    return np.ones((run.sizes["step"], run.sizes["gp"]), dtype=bool)
+
+
 def spread_rank_correlation(reference: xr.Dataset, run: xr.Dataset) -> float:
     """Median over the steps after the reference's peak force of Spearman's ρ between the run's
     relative spread and its stress error over the Gauss points; NaN without spread."""
@@ -89,10 +98,22 @@ def spread_rank_correlation(reference: xr.Dataset, run: xr.Dataset) -> float:
         return float("nan")
     errors = stress_errors(reference, run)
     spread = run["stress_spread_relative"].transpose("step", "gp").values[: errors.shape[0]]
+    answered = _networks_answered(run)[: errors.shape[0]]
     peak = int(np.argmax(_force(reference)))
-    rho = [spearman(spread[k], errors[k]) for k in range(peak + 1, errors.shape[0])]
+    rho = [spearman(spread[k][answered[k]], errors[k][answered[k]]) for k in range(peak + 1, errors.shape[0])]
     rho = [r for r in rho if np.isfinite(r)]
     return float(np.median(rho)) if rho else float("nan")
+
+
+def error_over_spread(reference: xr.Dataset, run: xr.Dataset) -> float:
+    """Median over every (step ≥ 1, point) of ‖σ − σ_ref‖ / ‖ensemble spread‖: about 1 when the spread
+    is the size of the error (calibrated); NaN without spread."""
+    if "stress_spread" not in run or int(run.attrs.get("ensemble_size", 1)) < 2:
+        return float("nan")
+    errors = stress_errors(reference, run)[1:]
+    spread = stress_norm(_values(run, "stress_spread")[1: errors.shape[0] + 1])
+    positive = (spread > 0) & _networks_answered(run)[1: errors.shape[0] + 1]
+    return float(np.median(errors[positive] / spread[positive])) if positive.any() else float("nan")
 
 
 def comparison_row(reference: xr.Dataset, run: xr.Dataset, zone: np.ndarray, zone_names: tuple[str, str]) -> dict:
@@ -116,6 +137,7 @@ def comparison_row(reference: xr.Dataset, run: xr.Dataset, zone: np.ndarray, zon
         f"stress MAE {inside} (kPa)": 1e-3 * float(stress[:, zone].mean()),
         f"stress MAE {outside} (kPa)": 1e-3 * float(stress[:, ~zone].mean()),
         "spread–error rank correlation after the peak": spread_rank_correlation(reference, run),
+        "median error / spread": error_over_spread(reference, run),
     }
     if reference.attrs.get("problem") == "biaxial":
         band, band_ref = band_metrics(run.isel(step=slice(0, n))), band_metrics(reference)
