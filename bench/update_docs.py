@@ -177,7 +177,7 @@ def render_problems(record: dict) -> str:
                   f"{rows[0][f'Gauss points {zone}']} of its Gauss points {zone}):", "",
                   "| run | steps | force max error, up to / after the peak (% of peak) | vol. strain max error (% of peak) "
                   f"| σ MAE {zone} / {rest} (kPa) |" + (" band inclination, onset (Δ to the reference) |" if band else "")
-                  + " spread–error ρ | DEM particle-steps | DEM points at the end (% " + zone + ") | wall |",
+                  + " spread–error ρ, error / spread | DEM particle-steps | DEM points at the end (% " + zone + ") | wall |",
                   "| --- | --- | --- | --- | --- |" + (" --- |" if band else "") + " --- | --- | --- | --- |"]
         for row in rows[1:]:
             dem_points = row.get("DEM points at the end")
@@ -190,7 +190,8 @@ def render_problems(record: dict) -> str:
                 line += (f" {_number(row['band inclination (deg)'], 1)}° ({row['inclination − reference (deg)']:+.1f}°), "
                          f"{_number(row['band onset: axial strain (%)'])} % ({_number(row['onset − reference (% strain)'])}) |")
             dem = row["DEM particle-steps (% of the reference's)"]
-            line += (f" {_number(row['spread–error rank correlation after the peak'])} | "
+            line += (f" {_number(row['spread–error rank correlation after the peak'])}, "
+                     f"{_number(row['median error / spread'])} | "
                      f"{'–' if dem != dem or not dem else f'{dem:.1f} %'} | "
                      f"{'–' if dem_points is None or dem_points != dem_points else f'{dem_points:.0f} ({_number(where, 0)} %)'} | "
                      f"{row['wall time (s)']:.1f} s |")
