@@ -253,6 +253,10 @@ class Plan:
         return {"section": c[problem], "pressure": c["specimen"]["confining_pressure"], "newton": c["newton"],
                 "material": material}
 
+    def analytic_problem_definition(self, problem: str) -> dict:
+        """What a run of `problem` with the elastoplastic model depends on (the reference, or beside FEM–DEM)."""
+        return {**self.problem_definition(problem), "material": self.config["elastoplastic"]}
+
     def element_test_overrides(self, test: str) -> dict:
         """The config of an element test: one RVE under a uniform field along analysis.element_test."""
         c = self.config

@@ -68,7 +68,7 @@ use rule fem_elastoplastic as problem_fem_elastoplastic with:
     benchmark:
         L.benchmark("{problem}/fem_elastoplastic/{case}")
     params:
-        model=lambda wc: PLAN.problem_definition(wc.problem),
+        model=lambda wc: PLAN.analytic_problem_definition(wc.problem),
         problem=lambda wc: wc.problem,
         path_name=lambda wc: wc.case,
 
@@ -249,7 +249,7 @@ use rule problem_fem_elastoplastic as biaxial_mesh_fem_elastoplastic with:
     benchmark:
         L.benchmark("biaxial_mesh/fem_elastoplastic/{mesh}")
     params:
-        model=lambda wc: PLAN.problem_definition("biaxial"),
+        model=lambda wc: PLAN.analytic_problem_definition("biaxial"),
         overrides=lambda wc: {"biaxial": {**config["biaxial"], "elements": [int(v) for v in wc.mesh.split("x")]}},
         problem="biaxial",
         path_name=lambda wc: list(config["biaxial"]["load_paths"])[0],

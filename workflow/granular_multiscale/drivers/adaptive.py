@@ -57,7 +57,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from ..adaptive.material import SCHEDULE, AdaptiveMaterialPointSet, anchor_points
+from ..adaptive.material import AdaptiveMaterialPointSet, anchor_points
 from ..data import read_run, write_run
 from ..dem.subset import DemSubsetMaterialPointSet
 from ..fem.problem import BoundaryValueProblem
