@@ -190,7 +190,7 @@ def render_problems(record: dict) -> str:
                 line += (f" {_number(row['band inclination (deg)'], 1)}° ({row['inclination − reference (deg)']:+.1f}°), "
                          f"{_number(row['band onset: axial strain (%)'])} % ({_number(row['onset − reference (% strain)'])}) |")
             dem = row["DEM particle-steps (% of the reference's)"]
-            line += (f" {_number(row['spread–error rank correlation after the peak'])}, "
+            line += (f" {_number(row['spread–error rank correlation (after the peak)'])}, "
                      f"{_number(row['median error / spread'])} | "
                      f"{'–' if dem != dem or not dem else f'{dem:.1f} %'} | "
                      f"{'–' if dem_points is None or dem_points != dem_points else f'{dem_points:.0f} ({_number(where, 0)} %)'} | "

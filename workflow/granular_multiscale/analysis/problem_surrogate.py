@@ -14,7 +14,7 @@ here are taken where the points differ:
   peak, over the whole path, up to the reference's peak and after it;
 * **volumetric strain**: the largest |εv − εv_ref| in % of the reference's largest |εv|;
 * **stress MAE**: the mean over steps, points and the six components of |σ − σ_ref| (kPa);
-* **rank correlation**: per step after the reference's peak, Spearman's ρ between a run's relative
+* **rank correlation**: per step after the reference's peak (every step where it has none), Spearman's ρ between a run's relative
   ensemble spread and its stress error ‖σ − σ_ref‖ over the Gauss points where the networks answered
   (all in FEM–ML, the surrogate points of an adaptive run); the median over those
   steps (does the spread say *where* the networks are wrong?), and the median of error / spread
@@ -92,15 +92,17 @@ def _networks_answered(run: xr.Dataset) -> np.ndarray:
 
 
 def spread_rank_correlation(reference: xr.Dataset, run: xr.Dataset) -> float:
-    """Median over the steps after the reference's peak force of Spearman's ρ between the run's
-    relative spread and its stress error over the Gauss points; NaN without spread."""
+    """Median over the steps after the reference's peak force (every step from 1 on where the force
+    still rises at the end, the footing) of Spearman's ρ between the run's relative spread and its
+    stress error over the Gauss points; NaN without spread."""
     if "stress_spread_relative" not in run or int(run.attrs.get("ensemble_size", 1)) < 2:
         return float("nan")
     errors = stress_errors(reference, run)
     spread = run["stress_spread_relative"].transpose("step", "gp").values[: errors.shape[0]]
     answered = _networks_answered(run)[: errors.shape[0]]
     peak = int(np.argmax(_force(reference)))
-    rho = [spearman(spread[k][answered[k]], errors[k][answered[k]]) for k in range(peak + 1, errors.shape[0])]
+    first = peak + 1 if peak + 1 < reference.sizes["step"] else 1  # a reference still rising at the end: every step
+    rho = [spearman(spread[k][answered[k]], errors[k][answered[k]]) for k in range(first, errors.shape[0])]
     rho = [r for r in rho if np.isfinite(r)]
     return float(np.median(rho)) if rho else float("nan")
 
@@ -136,7 +138,7 @@ def comparison_row(reference: xr.Dataset, run: xr.Dataset, zone: np.ndarray, zon
         "stress MAE (kPa)": 1e-3 * float(stress.mean()),
         f"stress MAE {inside} (kPa)": 1e-3 * float(stress[:, zone].mean()),
         f"stress MAE {outside} (kPa)": 1e-3 * float(stress[:, ~zone].mean()),
-        "spread–error rank correlation after the peak": spread_rank_correlation(reference, run),
+        "spread–error rank correlation (after the peak)": spread_rank_correlation(reference, run),
         "median error / spread": error_over_spread(reference, run),
     }
     if reference.attrs.get("problem") == "biaxial":
