@@ -111,6 +111,8 @@ def problem_headline_rows(record: dict) -> list[str]:
     """FEM–ML and the adaptive run beside its control on each problem (the headline's last rows)."""
     label, lines = run_label(record), []
     for problem, title in (("biaxial", "biaxial test"), ("footing", "strip footing")):
+        if f"{problem}/surrogate_{problem}.csv" not in record["figures"]["tables"]:
+            continue  # a record of a run without the surrogate on the problems
         rows = {r["run"]: r for r in rows_of(record, f"{problem}/surrogate_{problem}.csv")}
         ml = next(r for name, r in rows.items() if name.startswith("FEM–ML"))
         text = (f"FEM–ML {ml['force: largest error (% of peak)']:.1f} % (steps {ml['steps reached']})")
@@ -169,6 +171,9 @@ def render_problems(record: dict) -> str:
     """Every method on the biaxial test and the footing against their FEM–DEM runs (one table each)."""
     lines = []
     for problem, title in (("biaxial", "Biaxial test"), ("footing", "Strip footing")):
+        if f"{problem}/surrogate_{problem}.csv" not in record["figures"]["tables"]:
+            lines += [f"{title}: {run_label(record)} ran no surrogate on this problem.", ""]
+            continue
         rows = rows_of(record, f"{problem}/surrogate_{problem}.csv")
         zone = "in the band" if problem == "biaxial" else "under the footing"
         rest = "outside the band" if problem == "biaxial" else "elsewhere"
