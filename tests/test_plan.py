@@ -81,7 +81,7 @@ def test_labels_and_run_sets_of_the_products():
 def test_the_surrogate_on_the_problems_beside_its_controls():
     """Default scale: per problem the reference, FEM–ML, the analytic model alone, the adaptive run and its
     control, and the products of each; the tiny scale (no adaptive report) keeps the runs without DEM."""
-    plan = plan_of("config.yaml")
+    plan = plan_of("config.yaml", adaptive={"report": True, "problems": True})
     assert list(plan.problem_comparison("biaxial", "biaxial").items()) == [
         ("FEM–DEM (400 spheres)", "out/biaxial/fem_dem/biaxial.h5"),
         ("FEM–ML (autodiff tangent)", "out/biaxial/fem_ml/biaxial.h5"),
@@ -99,10 +99,17 @@ def test_the_surrogate_on_the_problems_beside_its_controls():
                                      "out/fem_dem/path2.h5", "out/biaxial/fem_dem/biaxial.h5",
                                      "out/footing/fem_dem/footing.h5"]
     # what an adaptive problem run depends on: the DEM settings and the adaptive section, not the thresholds of Path2
-    assert plan.problem_surrogate_definition("biaxial")["dem"] == plan.run_definition
-    assert plan_of("config.yaml", adaptive={"thresholds": [0.5]}).problem_surrogate_definition("biaxial") == \
-        plan.problem_surrogate_definition("biaxial")
-    both = plan_of("config.yaml", adaptive={"report": True, "controls": ["linear_elastic", "elastoplastic"]})
+    assert plan.problem_surrogate_definition("biaxial", adaptive=True)["dem"] == plan.run_definition
+    other = plan_of("config.yaml", adaptive={"report": True, "problems": True, "thresholds": [0.5]})
+    assert other.problem_surrogate_definition("biaxial", True) == plan.problem_surrogate_definition("biaxial", True)
+    assert "dem" not in plan.problem_surrogate_definition("biaxial")  # FEM–ML runs no DEM
+    # the default `all` runs FEM–ML on the problems; their adaptive runs are target problem_adaptive_runs
+    default = plan_of("config.yaml")
+    assert not default.problem_adaptive and len(default.problem_comparison("biaxial", "biaxial")) == 3
+    assert list(default.problem_adaptive_runs("biaxial", "biaxial").values()) == [
+        "out/biaxial/adaptive_t0.02/biaxial.h5", "out/biaxial/control_elastoplastic_t0.02/biaxial.h5"]
+    both = plan_of("config.yaml", adaptive={"report": True, "problems": True,
+                                            "controls": ["linear_elastic", "elastoplastic"]})
     assert list(both.problem_comparison("footing", "footing"))[-2:] == [
         "control: elastic model + the same DEM points", "control: elastoplastic model fitted to Path1 + the same DEM points"]
     tiny = plan_of("config.yaml", "tiny.yaml")

@@ -194,13 +194,13 @@ class Plan:
         self.problem_cases = {p: list(config[p]["load_paths"]) for p in self.problems}
         self.weak_zone = config["biaxial"]["weak_zone"]
         self.biaxial_meshes = ["x".join(map(str, m)) for m in config["analysis"]["biaxial_meshes"]]
-        # the surrogate on the problems: FEM–ML, and with a DEM reference and adaptive.report the adaptive
-        # run at adaptive.problem_threshold beside its controls (the same promotions, an analytic model
-        # instead of the networks)
+        # the surrogate on the problems: FEM–ML, and with a DEM reference, adaptive.report and
+        # adaptive.problems the adaptive run at adaptive.problem_threshold beside its controls (the same
+        # promotions, an analytic model instead of the networks)
         self.problem_threshold = float(adaptive["problem_threshold"])
         self.problem_adaptive_method = f"adaptive_{threshold_label(self.problem_threshold)}"
         self.controls = list(adaptive["controls"])
-        self.problem_adaptive = self.adaptive_in_report and bool(self.problems)
+        self.problem_adaptive = self.adaptive_in_report and bool(self.problems) and adaptive["problems"]
 
     # ---- training -------------------------------------------------------------------------
     def reference_run(self, path: str) -> str:
@@ -369,21 +369,32 @@ class Plan:
         """The run folder of a control of the problems' adaptive run: 'control_elastoplastic_t0.02'."""
         return f"control_{control}_{threshold_label(self.problem_threshold)}"
 
-    def problem_surrogate_definition(self, problem: str) -> dict:
-        """What a FEM–ML or adaptive run of `problem` depends on besides its inputs."""
+    def problem_surrogate_definition(self, problem: str, adaptive: bool = False) -> dict:
+        """What a FEM–ML (or with `adaptive`, an adaptive) run of `problem` depends on besides its inputs."""
         c, s = self.config, self.config["surrogate"]
         definition = {"section": c[problem], "pressure": c["specimen"]["confining_pressure"], "newton": c["newton"],
                       "surrogate_newton": s["newton"], "anchor_initial_state": s["anchor_initial_state"],
                       "out_of_range_tolerance": s["out_of_range_tolerance"]}
-        if self.problem_adaptive:
-            adaptive = {k: v for k, v in c["adaptive"].items() if k not in ("thresholds", "paths", "report",
-                                                                            "active_learning", "controls")}
-            definition.update({"dem": self.run_definition, "adaptive": adaptive, "seed": c["seed"]})
+        if adaptive:
+            section = {k: v for k, v in c["adaptive"].items() if k not in ("thresholds", "paths", "report",
+                                                                           "active_learning", "controls", "problems")}
+            definition.update({"dem": self.run_definition, "adaptive": section, "seed": c["seed"]})
         return definition
+
+    def problem_adaptive_runs(self, problem: str, case: str) -> dict[str, str]:
+        """{label: run file} of a problem's adaptive run and its controls."""
+        L = self.layout
+        runs = {f"adaptive FEM–DEM–ML, threshold {self.problem_threshold:g}":
+                L.problem_run(problem, self.problem_adaptive_method, case)}
+        for control in self.controls:
+            runs[f"control: {CONTROL_LABEL[control]} + the same DEM points"] = L.problem_run(
+                problem, self.control_method(control), case)
+        return runs
 
     def problem_comparison(self, problem: str, case: str) -> dict[str, str]:
         """Ordered {label: run file} of a problem's surrogate products: the reference first, FEM–ML and
-        the analytic model alone (no networks, no DEM), then the adaptive run and its controls."""
+        the analytic model alone (no networks, no DEM), then (adaptive.problems) the adaptive run and its
+        controls."""
         L = self.layout
         runs = {self.reference_label: self.problem_run(problem, case), self.surrogate_label:
                 L.problem_run(problem, "fem_ml", case)}
@@ -391,11 +402,7 @@ class Plan:
             runs["FEM, elastoplastic model fitted to Path1 (no networks)"] = L.problem_run(problem, "fem_elastoplastic",
                                                                                             case)
         if self.problem_adaptive:
-            t = f"{self.problem_threshold:g}"
-            runs[f"adaptive FEM–DEM–ML, threshold {t}"] = L.problem_run(problem, self.problem_adaptive_method, case)
-            for control in self.controls:
-                runs[f"control: {CONTROL_LABEL[control]} + the same DEM points"] = L.problem_run(
-                    problem, self.control_method(control), case)
+            runs.update(self.problem_adaptive_runs(problem, case))
         return runs
 
     def visited_states_runs(self) -> dict[str, str]:

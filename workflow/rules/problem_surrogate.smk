@@ -16,7 +16,8 @@
 #                             principal-axis rotation, strains) of the training sources and of each
 #                             problem's reference run, and the share of its states off the networks'
 #                             training data (k-nearest-neighbour distance in their inputs)
-# The adaptive runs and their controls run in `all` with adaptive.report and a DEM reference.
+#   problem_adaptive_runs     every problem's adaptive run and its controls (in `all` with
+#                             adaptive.problems, adaptive.report and a DEM reference)
 
 CAT_PROBLEMS_SURROGATE = "8 The surrogate on the problems"
 
@@ -54,7 +55,7 @@ use rule adaptive as problem_adaptive with:
         checkpoint=L.checkpoint(f"{{problem}}/{PLAN.problem_adaptive_method}/{{case}}"),
         tangent=config["surrogate"]["tangent"],
         allow_partial=True,
-        depends=lambda wc: PLAN.problem_surrogate_definition(wc.problem),
+        depends=lambda wc: PLAN.problem_surrogate_definition(wc.problem, adaptive=True),
         problem=lambda wc: wc.problem,
         path_name=lambda wc: wc.case,
 
@@ -76,7 +77,7 @@ use rule adaptive as problem_adaptive_control with:
         checkpoint=L.checkpoint(f"{{problem}}/{PLAN.control_method('{control}')}/{{case}}"),
         tangent=config["surrogate"]["tangent"],
         allow_partial=True,
-        depends=lambda wc: {**PLAN.problem_surrogate_definition(wc.problem), "model": config[wc.control]},
+        depends=lambda wc: {**PLAN.problem_surrogate_definition(wc.problem, adaptive=True), "model": config[wc.control]},
         problem=lambda wc: wc.problem,
         path_name=lambda wc: wc.case,
         control=lambda wc: wc.control,
@@ -130,3 +131,8 @@ rule table_visited_states:
         history=config["surrogate"]["history_variables"],
     script:
         "../../scripts/problem_products.py"
+
+
+rule problem_adaptive_runs:
+    input:
+        [f for p in PLAN.problems for c in PLAN.problem_cases[p] for f in PLAN.problem_adaptive_runs(p, c).values()],
