@@ -54,7 +54,8 @@ def test_adaptive_runs_join_all_only_with_adaptive_report(tmp_path):
 
 def test_the_default_scale_runs_the_adaptive_curve_in_all(tmp_path):
     """Pass criterion: config/config.yaml (the Snakefile's own) makes `all` run the validation path
-    at each of its adaptive thresholds, and nothing else adaptive, and draw the mode map."""
+    at each of its adaptive thresholds with its control (adaptive.controls), and nothing else
+    adaptive (not the problems' adaptive runs: adaptive.problems is false), and draw the mode map."""
     out = tmp_path / "default"
     command = [SNAKEMAKE, "-n", "all", "--config", f"output_dir={out}"]
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
@@ -62,6 +63,8 @@ def test_the_default_scale_runs_the_adaptive_curve_in_all(tmp_path):
     assert result.returncode == 0, output[-3000:]
     runs = sorted(line.split("output: ")[1].split(",")[0] for line in output.splitlines()
                   if "output: " in line and "/adaptive/" in line)
-    assert runs == [f"{out}/adaptive/t0.01/path2.h5", f"{out}/adaptive/t0.02/path2.h5"]
+    assert runs == [f"{out}/adaptive/t0.01/path2.h5", f"{out}/adaptive/t0.01_elastoplastic/path2.h5",
+                    f"{out}/adaptive/t0.02/path2.h5", f"{out}/adaptive/t0.02_elastoplastic/path2.h5"]
+    assert "/biaxial/adaptive_t" not in output and "/footing/control_" not in output
     assert f"output: {out}/figures/adaptive_mode_map.png" in output
     assert not out.exists()
