@@ -31,5 +31,5 @@ if "snakemake" in globals():
     main(dict(sm.config), sm.params.get("path_name") or sm.wildcards.path, float(sm.params.threshold),
          list(sm.input.packings), inputs.get("sigma"), inputs.get("tangent"), sm.params.tangent, sm.output.run,
          sm.output.trajectories, sm.params.checkpoint, sm.log[0], sm.threads, bool(sm.params.allow_partial),
-         problem=sm.params.get("problem") or "triaxial", weak_packing=(list(inputs.get("weak_packing") or []) or [None])[0],
+         problem=sm.params.get("problem") or "triaxial", weak_packing=next(iter(inputs.get("weak_packing") or []), None),
          control=sm.params.get("control"), schedule_from=inputs.get("schedule_from"))

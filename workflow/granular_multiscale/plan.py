@@ -39,6 +39,11 @@ ELEMENT_TESTS = {"triaxial": "triaxial compression", "biaxial": "plane strain co
 ACTIVE_ROUNDS = {"first": "", "after one round": "active/"}
 
 
+def adaptive_label(threshold: float) -> str:
+    """What the tables and figures call an adaptive run: 'adaptive FEM–DEM–ML, threshold 0.02'."""
+    return f"adaptive FEM–DEM–ML, threshold {threshold:g}"
+
+
 def path_label(path: str) -> str:
     """'path2' -> 'Path2', as the paper names its load paths."""
     return path[:1].upper() + path[1:]
@@ -267,17 +272,18 @@ class Plan:
         return {"biaxial": {**c["biaxial"], "uniform_field": True, "weak_zone": None, "load_paths": path}}
 
     # ---- run sets and labels of the products ------------------------------------------------
+    def _thresholds_descending(self) -> list[tuple[str, float]]:
+        return sorted(self.adaptive_thresholds.items(), key=lambda item: -item[1])
+
     def adaptive_runs(self, path: str) -> dict[str, str]:
         """{label: run file} of the adaptive runs of a load path, from the highest threshold to the lowest."""
-        ordered = sorted(self.adaptive_thresholds.items(), key=lambda item: -item[1])
-        return {f"adaptive FEM–DEM–ML, threshold {t:g}": self.layout.adaptive(label, path) for label, t in ordered}
+        return {adaptive_label(t): self.layout.adaptive(label, path) for label, t in self._thresholds_descending()}
 
     def control_runs(self, path: str) -> dict[str, str]:
         """{label: run file} of the controls of the adaptive runs of a load path: per threshold and
         model of adaptive.controls, the networks replaced by that model, the promotions copied."""
-        ordered = sorted(self.adaptive_thresholds.items(), key=lambda item: -item[1])
         return {f"control: {CONTROL_LABEL[c]} + the DEM points of threshold {t:g}": self.layout.adaptive(f"{label}_{c}", path)
-                for label, t in ordered for c in self.controls}
+                for label, t in self._thresholds_descending() for c in self.controls}
 
     def adaptive_run_files(self) -> list[str]:
         """Every threshold of adaptive.thresholds on every path of adaptive.paths."""
@@ -384,8 +390,7 @@ class Plan:
     def problem_adaptive_runs(self, problem: str, case: str) -> dict[str, str]:
         """{label: run file} of a problem's adaptive run and its controls."""
         L = self.layout
-        runs = {f"adaptive FEM–DEM–ML, threshold {self.problem_threshold:g}":
-                L.problem_run(problem, self.problem_adaptive_method, case)}
+        runs = {adaptive_label(self.problem_threshold): L.problem_run(problem, self.problem_adaptive_method, case)}
         for control in self.controls:
             runs[f"control: {CONTROL_LABEL[control]} + the same DEM points"] = L.problem_run(
                 problem, self.control_method(control), case)
