@@ -6,35 +6,31 @@ one) and at tighter ones, side by side.
     .venv/bin/python bench/bench_biaxial_tolerance.py --tolerances 0.02 0.01 --segments '[[9, 0.045]]' \
         --out results/bench/biaxial_tolerance_prepeak.json
 
-Each run uses the configured biaxial section (the tiny scale: config/tiny.yaml's, 2 x 4 quad8, a
-frictionless weak zone, to 7 %, as the YADE band test of tests/test_problems.py) with RVEs of
---spheres spheres.
-Printed and written (JSON, --out, after every run) per tolerance, loosest first: the largest
-platen-force difference to the tightest finished run over the path (in % of its peak), before and
-after that peak, the band metrics and their differences, Newton iterations, cutbacks, DEM
-particle-steps and the wall time; a run that stops in Newton is a row with its error.
+Each run uses the configured biaxial section (--configfile, default config/tiny.yaml: 2 x 4 quad8,
+a frictionless weak zone, to 7 %, as the YADE band test of tests/test_problems.py) with RVEs of
+--spheres spheres; the runs and packings go to biaxial_tolerance_runs/ beside the record.
+Printed and written (the record, --out, default {output_dir}/bench/biaxial_tolerance.json, after
+every run) per tolerance, loosest first: the largest platen-force difference to the tightest
+finished run over the path (in % of its peak), before and after that peak, the band metrics and
+their differences, Newton iterations, cutbacks, DEM particle-steps and the wall time; a run that
+stops in Newton is a row with its error.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import time
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from granular_multiscale.analysis.bands import band_metrics
-from granular_multiscale.config import CONFIG_DIR, load_config
 from granular_multiscale.dem.rve import RVESpec, prepare_packing
 from granular_multiscale.drivers.fem_dem import run_fem_dem
 from granular_multiscale.fem.newton import ConvergenceError
 
-from common import Measurement
-
-ROOT = Path(__file__).resolve().parents[1]
+from common import bench_config, bench_parser, run_folder
 
 
 def compare(runs: dict) -> list[dict]:
@@ -63,24 +59,21 @@ def compare(runs: dict) -> list[dict]:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--config", type=Path, default=CONFIG_DIR / "tiny.yaml")
+    parser = bench_parser("biaxial_tolerance", __doc__, configfile=["config/tiny.yaml"])
     parser.add_argument("--spheres", type=int, default=100)
     parser.add_argument("--tolerances", type=float, nargs="+", default=[0.05, 0.02, 0.01])
     parser.add_argument("--segments", type=json.loads, default=None,
                         help="replace the path's segments, JSON: '[[9, 0.045]]' stops before the tiny peak")
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "biaxial_tolerance.json")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
-    work = args.out.parent / "biaxial_tolerance_runs"
+    work = run_folder(args)
     work.mkdir(parents=True, exist_ok=True)
-    config = load_config(args.config, overrides={"dem.n_spheres": args.spheres})
+    config = bench_config(args.configfile, {"dem.n_spheres": args.spheres})
     path = list(config["biaxial"]["load_paths"])[0]
     if args.segments is not None:
         config["biaxial"]["load_paths"][path]["segments"] = args.segments
-    measurement = Measurement("biaxial_tolerance", {"config": str(args.config), "spheres": args.spheres,
-                                                    "biaxial": config["biaxial"]})
+    measurement = parser.measurement(args, biaxial=config["biaxial"])
     packings = {}
     for name, friction in (("strong", config["dem"]["friction"]), ("weak", config["biaxial"]["weak_zone"]["dem_friction"])):
         packings[name] = work / f"packing_{args.spheres}_{name}.yade.gz"

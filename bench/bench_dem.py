@@ -13,15 +13,17 @@
 3. Projection of a default-scale path from 2.: seconds per load step and evaluation.
 
     .venv/bin/python bench/bench_dem.py [--sizes 100 300 1000] [--rves 8] [--trials 3]
-                                        [--speedup-steps 3] [--skip-speedup] [--out FILE]
+                                        [--speedup-steps 3] [--skip-speedup] [--configfile FILE ...] [--out FILE]
 
-The machine may be shared: CPU seconds (process time of the RVE stepping) are what an idle
-machine would take; wall seconds include the contention.
+Printed, and written to the record (--out, default {output_dir}/bench/dem.json): 1. per sphere
+count (``per_size``), 2. and 3. (``speedup``). The DEM settings and the default-scale problem come
+from the config (--configfile, default config/config.yaml). The machine may be shared: CPU seconds
+(process time of the RVE stepping) are what an idle machine would take; wall seconds include the
+contention.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import subprocess
 import sys
@@ -31,12 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-
-from granular_multiscale.config import load_config
 from granular_multiscale.dem.material import DemMaterialPointSet
 from granular_multiscale.dem.rve import RVESpec, prepare_packing
 from granular_multiscale.dem.yade_env import child_env
+
+from common import bench_parser
 
 SETTINGS_KEYS = ("strain_rate", "min_steps", "max_steps", "damping")
 INCREMENT = np.array([3.0e-4, 3.0e-4, -1.05e-3, 0.0, 0.0, 0.0])
@@ -147,27 +148,24 @@ def speedup(config: dict, steps: int, workdir: Path) -> dict:
     return out
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", default=str(ROOT / "config" / "config.yaml"))
+def main(argv=None) -> dict:
+    parser = bench_parser("dem", __doc__)
     parser.add_argument("--sizes", type=int, nargs="+", default=[100, 300, 1000])
     parser.add_argument("--rves", type=int, default=8)
     parser.add_argument("--trials", type=int, default=3)
     parser.add_argument("--speedup-steps", type=int, default=3)
     parser.add_argument("--skip-speedup", action="store_true")
-    parser.add_argument("--out", default=str(ROOT / "results" / "bench" / "bench_dem.json"))
-    args = parser.parse_args()
-    config = load_config(args.config)
-    report = {"config": args.config, "per_size": [], "speedup": None}
+    args = parser.parse_args(argv)
+    measurement = parser.measurement(args)
+    figures = {"per_size": [], "speedup": None}
     with tempfile.TemporaryDirectory() as tmp:
         for n in args.sizes:
-            report["per_size"].append(per_size(config, n, args.rves, args.trials, Path(tmp)))
+            figures["per_size"].append(per_size(args.config, n, args.rves, args.trials, Path(tmp)))
         if not args.skip_speedup:
-            report["speedup"] = speedup(config, args.speedup_steps, Path(tmp))
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=1))
-    print(f"wrote {out}")
+            figures["speedup"] = speedup(args.config, args.speedup_steps, Path(tmp))
+    measurement.finish(figures, args.out)
+    print(f"wrote {args.out}")
+    return figures
 
 
 if __name__ == "__main__":

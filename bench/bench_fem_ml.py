@@ -3,9 +3,10 @@ wall time of the whole run with the nn tangent (NNσ + ND) and with the autodiff
 (exact Jacobian of NNσ), Newton iterations and the material / assembly / solve split.
 
 The networks are material models, independent of the mesh: by default the bench uses the
-models of a finished default-scale run (results/models/nn_sigma.pt, nn_tangent.pt). When
-they are missing (or with --train) it trains a quick pair on the elastoplastic reference of
-Path1 at the default mesh (2×2×4), with the config's surrogate settings but --epochs epochs.
+models of a finished run of the config (--configfile; default config/config.yaml, whose run
+writes results/models/nn_sigma.pt, nn_tangent.pt), or those of --models. When they are missing
+(or with --train) it trains a quick pair on the elastoplastic reference of Path1 at the default
+mesh (2×2×4), with the config's surrogate settings but --epochs epochs.
 The paper needed 0.2 h for this run (Table 4); the goal here is under 10 s.
 
 The default-scale networks (trained on Path1 of the 2×2×4 mesh and the RVE-path sets, which
@@ -25,16 +26,18 @@ reference: its paper-mesh runs take seconds):
 `ensemble_size: 5` to the surrogate overrides, and another output_dir, for the ensemble row
 of docs/surrogate.md.)
 
-    .venv/bin/python bench/bench_fem_ml.py [--models results/models] [--train] [--epochs 150]
-                                           [--elements 5 5 10] [--json out.json]
+    .venv/bin/python bench/bench_fem_ml.py [--configfile FILE ...] [--models FOLDER] [--train] [--epochs 150]
+                                           [--elements 5 5 10] [--path path2] [--reference FILE] [--out FILE]
+
+Printed, and written to the record (--out, default {output_dir}/bench/fem_ml.json): the networks
+used, and per tangent (``runs``: nn, autodiff) the wall and CPU time, the solver's split, Newton
+iterations, cutbacks, the steps done and, with --reference, the top-force error per load phase.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import os
 import logging
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -42,15 +45,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from granular_multiscale.analysis.metrics import curve_errors
-from granular_multiscale.config import load_config
 from granular_multiscale.data import read_run
+from granular_multiscale.drivers.fem_ml import run_fem_ml
 from granular_multiscale.fem.newton import ConvergenceError
 from granular_multiscale.paths import load_paths_from_config
-from granular_multiscale.drivers.fem_ml import run_fem_ml
 from granular_multiscale.surrogate.models import SurrogateModel
 
-from common import train_elastoplastic_models
+from common import bench_config, bench_parser, curve_error_pct, pipeline_models, train_elastoplastic_models
 
 
 def quick_models(config: dict, folder: Path, epochs: int) -> tuple[Path, Path]:
@@ -61,29 +62,30 @@ def quick_models(config: dict, folder: Path, epochs: int) -> tuple[Path, Path]:
     return files
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", default=None, help="config file (default config/config.yaml)")
-    parser.add_argument("--models", default="results/models", help="folder with nn_sigma.pt and nn_tangent.pt")
+def main(argv=None) -> dict:
+    parser = bench_parser("fem_ml", __doc__)
+    parser.add_argument("--models", default=None, help="folder with nn_sigma.pt and nn_tangent.pt "
+                        "(default: those of the config's output_dir)")
     parser.add_argument("--train", action="store_true", help="train a quick pair even if --models has one")
     parser.add_argument("--epochs", type=int, default=150, help="epochs of the quick training")
     parser.add_argument("--elements", type=int, nargs=3, default=[5, 5, 10])
     parser.add_argument("--path", default="path2",
                         help="load path of the config, or 'monotonic': the same 57 steps loading straight to 4.5 %%")
-    parser.add_argument("--reference", default=None, help="reference run of the same mesh and path: print the top-force error")
-    parser.add_argument("--json", default=None, help="write the numbers to this file")
-    args = parser.parse_args()
+    parser.add_argument("--reference", default=None, help="reference run of the same mesh and path: the top-force error per load phase")
+    args = parser.parse_args(argv)
 
     logging.basicConfig(level=logging.WARNING)
-    config = load_config(args.config, overrides={"reference_material": "elastoplastic"})
+    config = bench_config(args.configfile, {"reference_material": "elastoplastic"})
     torch.set_num_threads(int(config["surrogate"]["torch_threads"]))
-    folder = Path(args.models)
-    sigma, tangent = folder / "nn_sigma.pt", folder / "nn_tangent.pt"
+    measurement = parser.measurement(args)
+    sigma, tangent = pipeline_models(config, args.models)
     scratch = tempfile.TemporaryDirectory()
     if args.train or not (sigma.is_file() and tangent.is_file()):
         sigma, tangent = quick_models(config, Path(scratch.name), args.epochs)
+        networks = f"a quick NNσ + ND trained here ({args.epochs} epochs)"
     else:
-        print(f"models: {sigma}, {tangent}")
+        networks = f"{sigma}, {tangent}"
+    print(f"models: {networks}")
     ensemble_size = SurrogateModel.load(sigma).ensemble_size
     print(f"networks per model: {ensemble_size}" + (" (an ensemble: the mean of their predictions)" if ensemble_size > 1 else ""))
 
@@ -99,6 +101,7 @@ def main() -> None:
             ds, stopped = run_fem_ml(paper, args.path, sigma, tangent, method, progress=False), ""
         except ConvergenceError as error:  # report how far it got and what it cost
             ds, stopped = error.partial, str(error)
+            ds.attrs["completed"] = 0  # compared with the reference on the steps it reached
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         results[method] = {
             "cpu_s": cpu,
@@ -118,8 +121,7 @@ def main() -> None:
             "steps_done": int(ds.sizes["step"]) - 1,
         }
         if reference is not None:
-            errors = curve_errors(reference, ds).query("quantity == 'top_force'")
-            results[method]["top_force_error_pct_of_peak"] = dict(zip(errors["phase"], errors["max_error_percent_of_peak"]))
+            results[method]["top_force_error_pct_of_peak"] = curve_error_pct(reference, ds, "top_force")
     print(f"FEM–ML {args.path}, mesh {'x'.join(map(str, args.elements))} "
           f"({results['nn']['gauss_points']} Gauss points, {n_steps} steps), torch threads "
           f"{torch.get_num_threads()}")
@@ -136,10 +138,11 @@ def main() -> None:
                 f"{phase} {value:.2f}" for phase, value in r["top_force_error_pct_of_peak"].items()))
     print(f"goal: under 10 s (the paper's FEM–ML run took 0.2 h); load average now {os.getloadavg()[0]:.1f} on "
           f"{os.cpu_count()} cores (CPU s is what the run itself used)")
-    if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=2))
     scratch.cleanup()
-    return results
+    figures = {"networks": networks, "torch_threads": torch.get_num_threads(), "runs": results}
+    measurement.finish(figures, args.out)
+    print(f"wrote {args.out}")
+    return figures
 
 
 if __name__ == "__main__":

@@ -2,37 +2,41 @@
 printed side by side, with the DEM cost per particle-step and the coupling overhead share.
 
     .venv/bin/python bench/bench_fem_ml_vs_dem.py                      # tiny scale, first 12 steps of Path2
-    .venv/bin/python bench/bench_fem_ml_vs_dem.py --scale default      # 2×2×4, 128 RVEs of 400 spheres (long)
+    .venv/bin/python bench/bench_fem_ml_vs_dem.py --configfile config/config.yaml   # 2×2×4, 128 RVEs of 400 spheres (long)
     .venv/bin/python bench/bench_fem_ml_vs_dem.py --steps 57 --workers 2 --models results/tiny/models
 
-Both runs use the solver settings of the pipeline: FEM–DEM the ``newton`` section with the
-``dem.newton`` overrides, FEM–ML the ``newton`` section (plus --ml-newton overrides). The
-RVE packing is the pipeline's (``<output_dir>/rve/packing_0.yade.gz``) when it exists,
-otherwise one is consolidated here (YADE) and its time reported separately. The networks are
-the pipeline's (``--models``: nn_sigma.pt, nn_tangent.pt) or, without it, trained here on the
-elastoplastic reference of Path1 on the same mesh (paper architecture; a forward pass costs
-the same whatever the weights, but the Newton iterations depend on them: say which in a report).
+The scale is the config's (--configfile, default config/tiny.yaml). Both runs use the solver
+settings of the pipeline: FEM–DEM the ``newton`` section with the ``dem.newton`` overrides,
+FEM–ML the ``newton`` section (plus --ml-newton overrides). The RVE packing is the pipeline's
+(``<output_dir>/rve/packing_0.yade.gz``) when it exists, otherwise one is consolidated here (YADE,
+kept in ``fem_ml_vs_dem_runs/`` beside the record) and its time reported separately. The
+networks are the pipeline's (``--models``: nn_sigma.pt, nn_tangent.pt) or, without it, trained
+here on the elastoplastic reference of Path1 on the same mesh (paper architecture; a forward
+pass costs the same whatever the weights, but the Newton iterations depend on them: say which
+in a report).
+
+Printed, and written to the record (--out, default {output_dir}/bench/fem_ml_vs_dem.json): per
+run (``fem_dem``; ``fem_ml``; ``fem_ml_at_dem_tolerance``) seconds per load step, Newton
+iterations and evaluations per step, cutbacks, start-up and whole-run seconds; the ratios; the
+DEM cost per particle-step and its time split (``dem``); FEM–ML's top-force error against
+FEM–DEM on these steps, in % of FEM–DEM's peak.
 """
 
 from __future__ import annotations
 
-import argparse
 import logging
 import time
 from pathlib import Path
 
-import numpy as np
 import yaml
 
-from granular_multiscale.config import CONFIG_DIR, load_config, validate_config
+from granular_multiscale.config import validate_config
 from granular_multiscale.fem.newton import ConvergenceError
 from granular_multiscale.fem.triaxial import TriaxialProblem
 from granular_multiscale.paths import LoadPath, load_paths_from_config
+from granular_multiscale.plan import Layout
 
-from common import surrogate_models
-
-ROOT = Path(__file__).resolve().parents[1]
-SCALES = {"tiny": "tiny.yaml", "default": "config.yaml"}
+from common import bench_parser, run_folder, surrogate_models, top_force_error_pct
 
 
 def first_steps(path: LoadPath, n: int) -> LoadPath:
@@ -68,9 +72,8 @@ def run_fem_dem(config, path, packing, workers, logger):
     return problem, ds, split, start, cfg["newton"]
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scale", choices=sorted(SCALES), default="tiny")
+def main(argv=None) -> dict:
+    parser = bench_parser("fem_ml_vs_dem", __doc__, configfile=["config/tiny.yaml"])
     parser.add_argument("--steps", type=int, default=12, help="first N load steps of the validation path (57 = all)")
     parser.add_argument("--workers", type=int, default=2, help="RVE worker processes of FEM–DEM")
     parser.add_argument("--packing", help="a consolidated packing (default: the pipeline's, else made here)")
@@ -78,26 +81,27 @@ def main() -> None:
     parser.add_argument("--ml-newton", nargs="*", default=["acceleration=anderson"],
                         help="newton overrides for FEM–ML, key=value (default: acceleration=anderson)")
     parser.add_argument("--verbose", action="store_true")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
     logger = logging.getLogger("bench")
 
     import torch
 
-    config = load_config(CONFIG_DIR / SCALES[args.scale])
+    config = args.config
+    measurement = parser.measurement(args)
     torch.set_num_threads(int(config["surrogate"]["torch_threads"]))
     full_path = load_paths_from_config(config)[config["validation_path"]]
     path = first_steps(full_path, min(args.steps, full_path.n_steps))
 
     # -- the RVE packing
-    packing = Path(args.packing) if args.packing else ROOT / config["output_dir"] / "rve" / "packing_0.yade.gz"
+    packing = Path(args.packing or Layout(config["output_dir"]).packings(1)[0])
     packing_note = f"pipeline packing {packing}"
     if not packing.exists():
         from granular_multiscale.dem.rve import RVESpec, prepare_packing
 
-        # cached between bench runs (results/ is not versioned)
-        packing = ROOT / "results" / "bench" / f"packing_{config['dem']['n_spheres']}_seed{config['seed']}.yade.gz"
-        packing_note = f"bench packing {packing.relative_to(ROOT)}"
+        # cached between bench runs
+        packing = run_folder(args) / f"packing_{config['dem']['n_spheres']}_seed{config['seed']}.yade.gz"
+        packing_note = f"bench packing {packing}"
         if not packing.exists():
             packing.parent.mkdir(parents=True, exist_ok=True)
             t0 = time.perf_counter()
@@ -129,12 +133,13 @@ def main() -> None:
             except ConvergenceError as error:
                 print(f"{label} stopped: {error}; timing the steps it converged")
                 ds = error.partial
+                ds.attrs["completed"] = 0  # compared with FEM–DEM on the steps it reached
         ml[label], ml_runs[label] = {**per_step(ds), "start": start}, ds
     ml_ds = ml_runs["FEM–ML"]
 
     # -- report
     n_gp = problem.n_gauss_points
-    print(f"scale {args.scale}: mesh {'x'.join(map(str, problem.mesh_elements))}, {n_gp} Gauss points, "
+    print(f"output_dir {config['output_dir']}: mesh {'x'.join(map(str, problem.mesh_elements))}, {n_gp} Gauss points, "
           f"RVEs of {config['dem']['n_spheres']} spheres, first {path.n_steps} steps of {full_path.name}")
     print(f"  {packing_note}; FEM–ML networks: {models_note}")
     print(f"  Newton: FEM–DEM tolerance {dem_newton['tolerance']:.0e}, {dem_newton['max_iterations']} iterations; "
@@ -151,16 +156,35 @@ def main() -> None:
     print(f"  {'whole run (s)':26s}{dem['total_s']:12.1f}{a['total_s']:12.2f}"
           f"{dem['total_s'] / a['total_s']:7.0f}x{b['total_s']:14.2f}{dem['total_s'] / b['total_s']:7.0f}x")
     particle_steps = split["particle_steps"]
+    dem_cost = {"particle_steps": particle_steps, "workers": args.workers}
     if particle_steps:
-        print(f"  DEM: {1e6 * split['dem_cpu_time'] / particle_steps:.2f} µs CPU per particle-step "
+        dem_cost.update({"cpu_us_per_particle_step": 1e6 * split["dem_cpu_time"] / particle_steps,
+                         "material_s": split["material_time"],
+                         "stepping_share": split["dem_time"] / split["material_time"],
+                         "imbalance_share": split["imbalance_time"] / split["material_time"],
+                         "coupling_overhead_share": split["overhead_time"] / split["material_time"],
+                         "fem_outside_the_material_share": 1 - split["material_time"] / dem["total_s"]})
+        print(f"  DEM: {dem_cost['cpu_us_per_particle_step']:.2f} µs CPU per particle-step "
               f"({particle_steps:.3g} particle-steps, {args.workers} workers); of the time inside the DEM material "
-              f"{split['material_time']:.1f} s: stepping {split['dem_time'] / split['material_time']:.0%}, "
-              f"imbalance {split['imbalance_time'] / split['material_time']:.0%}, coupling overhead "
-              f"(fork, transfer, Python) {split['overhead_time'] / split['material_time']:.0%}; "
-              f"the FEM outside the material {1 - split['material_time'] / dem['total_s']:.0%} of the run")
-    top = np.abs(dem_ds.top_force.values - ml_ds.top_force.values).max() / np.abs(dem_ds.top_force.values).max()
-    print(f"  (FEM–ML vs FEM–DEM top force on these steps: max difference {top:.1%} of the peak — only "
+              f"{split['material_time']:.1f} s: stepping {dem_cost['stepping_share']:.0%}, "
+              f"imbalance {dem_cost['imbalance_share']:.0%}, coupling overhead "
+              f"(fork, transfer, Python) {dem_cost['coupling_overhead_share']:.0%}; "
+              f"the FEM outside the material {dem_cost['fem_outside_the_material_share']:.0%} of the run")
+    top = top_force_error_pct(dem_ds, ml_ds)
+    print(f"  (FEM–ML vs FEM–DEM top force on these steps: max difference {top:.1f} % of the peak — only "
           "meaningful with networks trained on this DEM)")
+    figures = {"mesh": "x".join(map(str, problem.mesh_elements)), "gauss_points": n_gp,
+               "n_spheres": config["dem"]["n_spheres"], "steps": path.n_steps, "path": full_path.name,
+               "packing": packing_note, "networks": models_note,
+               "fem_dem": {**dem, "start": dem_start, "newton_tolerance": dem_newton["tolerance"]},
+               "fem_ml": a, "fem_ml_at_dem_tolerance": b,
+               "ratio_s_per_step": dem["s_per_step"] / a["s_per_step"],
+               "ratio_s_per_step_at_dem_tolerance": dem["s_per_step"] / b["s_per_step"],
+               "ratio_whole_run": dem["total_s"] / a["total_s"],
+               "dem": dem_cost, "fem_ml_top_force_error_pct": top}
+    measurement.finish(figures, args.out)
+    print(f"wrote {args.out}")
+    return figures
 
 
 if __name__ == "__main__":

@@ -6,14 +6,14 @@ and without softening.
 
     .venv/bin/python bench/bench_footing_domain.py [--out results/bench/footing_domain.json]
 
-Printed and written per material and domain: the footing pressure at s/B = 5 % and 10 % and its
-ratio to the default domain's. The refined mesh separates what the domain does from what the mesh
-does.
+Printed and written (the record, --out, default {output_dir}/bench/footing_domain.json; the runs
+in footing_domain_runs/ beside it) per material and domain: the footing pressure at s/B = 5 % and
+10 % and its ratio to the default domain's. The refined mesh separates what the domain does from
+what the mesh does.
 """
 
 from __future__ import annotations
 
-import argparse
 import logging
 import time
 from pathlib import Path
@@ -24,9 +24,7 @@ from granular_multiscale.config import load_config
 from granular_multiscale.drivers.reference import run_fem_reference
 from granular_multiscale.materials.elastoplastic import SOFTENING
 
-from common import Measurement
-
-ROOT = Path(__file__).resolve().parents[1]
+from common import bench_parser, run_folder
 # (domain [half width, depth] in m, elements [x, z]): the default first
 DOMAINS = [([0.5, 0.3], [4, 3]), ([0.75, 0.3], [5, 3]), ([0.5, 0.45], [4, 4]), ([0.75, 0.45], [5, 4]),
            ([1.0, 0.6], [6, 5]), ([0.5, 0.3], [8, 6])]
@@ -49,14 +47,12 @@ def run(softening: bool, domain: list, elements: list, out_dir: Path) -> dict:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "footing_domain.json")
+    parser = bench_parser("footing_domain", __doc__)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    measurement = Measurement("footing_domain", {"softening": SOFTENING, "path": PATH})
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    runs_dir = args.out.parent / "footing_domain_runs"
-    runs_dir.mkdir(exist_ok=True)
+    measurement = parser.measurement(args, softening=SOFTENING, path=PATH)
+    runs_dir = run_folder(args)
+    runs_dir.mkdir(parents=True, exist_ok=True)
     rows = []
     for softening in (False, True):
         block = [run(softening, domain, elements, runs_dir) for domain, elements in DOMAINS]

@@ -5,15 +5,15 @@ fully integrated (quad4).
 
     .venv/bin/python bench/bench_plane_elements.py [--out results/bench/plane_elements.json]
 
-Printed and written per element and mesh: the band metrics (analysis/bands.py), the peak platen
-force and the force at the end over the peak, Newton iterations and cutbacks, wall time. A
-locking element shows a low band ratio and a band that is not inclined like a shear band; the
-rows of one element against each other show the mesh dependence of the post-peak branch.
+Printed and written (the record, --out, default {output_dir}/bench/plane_elements.json; the runs
+in plane_elements_runs/ beside it) per element and mesh: the band metrics (analysis/bands.py), the
+peak platen force and the force at the end over the peak, Newton iterations and cutbacks, wall
+time. A locking element shows a low band ratio and a band that is not inclined like a shear band;
+the rows of one element against each other show the mesh dependence of the post-peak branch.
 """
 
 from __future__ import annotations
 
-import argparse
 import logging
 import time
 from pathlib import Path
@@ -26,9 +26,7 @@ from granular_multiscale.config import load_config
 from granular_multiscale.drivers.reference import run_fem_reference
 from granular_multiscale.materials.elastoplastic import SOFTENING
 
-from common import Measurement
-
-ROOT = Path(__file__).resolve().parents[1]
+from common import bench_parser, run_folder
 MESHES = [(3, 6), (4, 8), (6, 12), (8, 16)]
 ELEMENTS = ("quad8", "quad4")
 WEAK_ZONE = {"center": [0.0125, 0.04], "radius": 0.008}
@@ -57,14 +55,11 @@ def run(element: str, mesh: tuple[int, int], out_dir: Path) -> dict:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "plane_elements.json")
+    parser = bench_parser("plane_elements", __doc__)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    measurement = Measurement("plane_elements", {"material": SOFTENING, "weak_zone": WEAK_ZONE})
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    runs_dir = args.out.parent / "plane_elements_runs"
-    rows = [run(element, mesh, runs_dir) for element in ELEMENTS for mesh in MESHES]
+    measurement = parser.measurement(args, material=SOFTENING, weak_zone=WEAK_ZONE)
+    rows = [run(element, mesh, run_folder(args)) for element in ELEMENTS for mesh in MESHES]
     table = pd.DataFrame(rows)
     print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
     measurement.finish(rows, args.out)

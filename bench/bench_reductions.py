@@ -6,7 +6,7 @@ validation path with the same packing and the configured FEM–DEM settings:
   with smooth platens (the only scene where a uniform field is valid).
 
     .venv/bin/python bench/bench_reductions.py                        # tiny scale (~2 min)
-    .venv/bin/python bench/bench_reductions.py --scale default \\
+    .venv/bin/python bench/bench_reductions.py --configfile config/config.yaml \\
         --full results/fem_dem/path2.h5                               # reuse the pipeline's full run
 
 A DEM packing is not mirror-symmetric, so a quarter model imposes a symmetry the full specimen
@@ -16,12 +16,13 @@ Printed per reduction: top force (largest difference in % of the full run's peak
 strain (in % of its peak magnitude), Gauss-point stress (MAE over steps, points and components,
 and in % of the mean stress magnitude) at the same positions, and the DEM particle-steps of each.
 For the full run it also prints its own asymmetry: the stress difference between each Gauss point
-of the quarter region and its three mirror images.
+of the quarter region and its three mirror images. The scale is the config's (--configfile,
+default config/tiny.yaml); the rows are written to the record (--out, default
+{output_dir}/bench/reductions.json), the runs to ``reductions_runs/`` beside it, and reused.
 """
 
 from __future__ import annotations
 
-import argparse
 import copy
 import logging
 from pathlib import Path
@@ -29,12 +30,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from granular_multiscale.config import CONFIG_DIR, load_config
 from granular_multiscale.data import read_run
 from granular_multiscale.drivers.fem_dem import run_fem_dem
+from granular_multiscale.plan import Layout
 
-ROOT = Path(__file__).resolve().parents[1]
-SCALES = {"tiny": "tiny.yaml", "default": "config.yaml"}
+from common import bench_parser, curve_error_pct, require_files, run_folder, top_force_error_pct
+
 SCENES = {
     "full_rough": {"platen": "rough", "symmetry": "none", "uniform_field": False},
     "quarter_rough": {"platen": "rough", "symmetry": "quarter", "uniform_field": False},
@@ -60,11 +61,9 @@ def stress_difference(a: np.ndarray, b: np.ndarray) -> dict:
 
 
 def curves(run, reference) -> dict:
-    force, volume = reference.top_force.values, reference.volumetric_strain.values
-    return {
-        "top_force_max_pct": 100 * np.abs(run.top_force.values - force).max() / np.abs(force).max(),
-        "volumetric_strain_max_pct": 100 * np.abs(run.volumetric_strain.values - volume).max() / np.abs(volume).max(),
-    }
+    """Largest differences of the load curves over the path, in % of the reference's peak magnitude."""
+    return {"top_force_max_pct": top_force_error_pct(reference, run),
+            "volumetric_strain_max_pct": curve_error_pct(reference, run, "volumetric_strain")["all"]}
 
 
 def mirror_asymmetry(full, size) -> dict:
@@ -87,28 +86,26 @@ def mirror_asymmetry(full, size) -> dict:
     return {"stress_mae_kpa": 1e-3 * err.mean(), "stress_mae_pct": 100 * err.mean() / np.abs(stress[1:, :, :3]).mean()}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scale", choices=sorted(SCALES), default="tiny")
+def main(argv=None) -> list[dict]:
+    parser = bench_parser("reductions", __doc__, configfile=["config/tiny.yaml"])
     parser.add_argument("--packing", help="consolidated packing (default: <output_dir>/rve/packing_0.yade.gz)")
     parser.add_argument("--full", help="an existing full, rough-platen FEM–DEM run of the validation path to reuse")
-    parser.add_argument("--out", help="folder of the runs (default: results/bench/reductions_<scale>)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--verbose", action="store_true")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(asctime)s %(message)s")
     logger = logging.getLogger("bench")
 
-    config = load_config(CONFIG_DIR / SCALES[args.scale])
+    config = args.config
+    layout = Layout(config["output_dir"])
     path = config["validation_path"]
-    packing = Path(args.packing) if args.packing else ROOT / config["output_dir"] / "rve" / "packing_0.yade.gz"
-    if not packing.exists():
-        raise SystemExit(f"packing {packing} not found: run `snakemake -j2 {config['output_dir']}/rve/summary.json` "
-                         "with the same config first, or pass --packing")
-    out = Path(args.out) if args.out else ROOT / "results" / "bench" / f"reductions_{args.scale}"
+    packing = Path(args.packing or layout.packings(1)[0])
+    require_files(packing, hint=f"run `snakemake -j2 {layout.packing_summary()}` with the same config first, "
+                                "or pass --packing")
+    measurement = parser.measurement(args)
     runs, cost = {}, {}
     for name, scene in SCENES.items():
-        target = out / name / f"{path}.h5"
+        target = run_folder(args) / name / f"{path}.h5"
         if name == "full_rough" and args.full:
             target = Path(args.full)
         if not target.exists():
@@ -144,12 +141,12 @@ def main() -> None:
     ]
     table = pd.DataFrame(rows)
     pd.set_option("display.width", 200)
-    print(f"\n{args.scale} scale, {path}, {config['dem']['n_spheres']} spheres per RVE, packing {packing}, "
+    print(f"\noutput_dir {config['output_dir']}, {path}, {config['dem']['n_spheres']} spheres per RVE, packing {packing}, "
           f"Newton tolerance {full.attrs['newton_tolerance']:g}")
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
-    out.mkdir(parents=True, exist_ok=True)
-    table.to_csv(out / "reductions.csv", index=False)
-    print(f"\nwritten {out / 'reductions.csv'}")
+    measurement.finish(rows, args.out)
+    print(f"\nwrote {args.out}")
+    return rows
 
 
 if __name__ == "__main__":

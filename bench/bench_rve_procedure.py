@@ -22,7 +22,9 @@ replays in one RVE of a strain history (``direct_triaxial`` mode replay)
 Printed: q (kPa) and εv (%) at 0.5/1/2/3/4.5 % axial strain, mean ± standard deviation over the
 packings; the paired difference to the direct test at 3 and 4.5 %; for the replays the largest
 |σ11 or σ22 + p| / p at the increment ends (how far the path is from the other procedure's
-equilibrium); the wall time of every run. ``--out`` writes everything as JSON.
+equilibrium); the wall time of every run. The record (--out, default
+{output_dir}/bench/rve_procedure.json) holds everything: the packings, every run's numbers
+(``runs``, ``sensitivity``) and the printed table.
 
     .venv/bin/python bench/bench_rve_procedure.py [--spheres 400] [--seeds 0 1 2] [--quick] [--sensitivity]
         [--packings results/rve/packing_0.yade.gz ...] [--workdir DIR] [--out FILE]
@@ -36,8 +38,6 @@ consolidate and 7 min for all runs on a 2-core machine.
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 import tempfile
 import time
@@ -45,9 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-
-from granular_multiscale.studies.uniform_fem_dem import run_fem_dem_uniform
+from granular_multiscale.dem.rve import RVESpec, prepare_packing
 from granular_multiscale.studies.direct_triaxial import (
     REPORT_AT,
     DirectSpec,
@@ -57,7 +55,9 @@ from granular_multiscale.studies.direct_triaxial import (
     peak,
     run_direct,
 )
-from granular_multiscale.dem.rve import RVESpec, prepare_packing
+from granular_multiscale.studies.uniform_fem_dem import run_fem_dem_uniform
+
+from common import bench_parser
 
 P0 = 1.0e5
 
@@ -174,7 +174,7 @@ def sensitivity_table(runs: dict, key: str) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = bench_parser("rve_procedure", __doc__)
     parser.add_argument("--spheres", type=int, default=400)
     parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     parser.add_argument("--packings", nargs="*", default=[], help="consolidated packings to use as well (read only)")
@@ -183,8 +183,8 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--sensitivity", action="store_true",
                         help="also run the direct-test variants of SENSITIVITY on the first packing")
-    parser.add_argument("--out")
     args = parser.parse_args(argv)
+    measurement = parser.measurement(args)
 
     t_start = time.perf_counter()
     work = Path(args.workdir)
@@ -235,13 +235,14 @@ def main(argv=None) -> int:
         print()
         print(sensitivity_table(sens, key))
     print(f"\ntotal wall time {time.perf_counter() - t_start:.0f} s")
-    if args.out:
-        slim = {k: {n: {kk: vv for kk, vv in r.items() if kk not in ("records", "dstrain", "strain", "stress")}
-                    | {"at": at_strains(r), "peak": peak(r)} for n, r in runs.items()}
-                for k, runs in all_runs.items()}
-        slim_sens = {n: {kk: vv for kk, vv in r.items() if kk != "records"} | {"at": at_strains(r)} for n, r in sens.items()}
-        Path(args.out).write_text(json.dumps({"packings": packings, "runs": slim, "table": table(all_runs),
-                                              "sensitivity": slim_sens}, indent=1))
+    # the runs' numbers without their per-step records
+    slim = {k: {n: {kk: vv for kk, vv in r.items() if kk not in ("records", "dstrain", "strain", "stress")}
+                | {"at": at_strains(r), "peak": peak(r)} for n, r in runs.items()}
+            for k, runs in all_runs.items()}
+    slim_sens = {n: {kk: vv for kk, vv in r.items() if kk != "records"} | {"at": at_strains(r)} for n, r in sens.items()}
+    measurement.finish({"packings": packings, "runs": slim, "table": table(all_runs), "sensitivity": slim_sens},
+                       args.out)
+    print(f"wrote {args.out}")
     return 0
 
 

@@ -1,11 +1,16 @@
-"""What the benches share: the record each writes and the machine it was measured on, the
-adaptive variants of the command line, and the networks the FEM benches use.
+"""What the benches share: one command line, the config and the record each writes, the
+machine it was measured on, the networks the FEM benches use, the top-force error, and the
+adaptive variants of the command line.
 
-A bench starts a :class:`Measurement` before it measures and finishes it after. The record,
-one JSON file, holds the commit, the machine (CPU model, cores, memory, load average before
-and after), the date, the settings that differ from the defaults, and the figures:
+A bench builds its command line with :func:`bench_parser` (``--configfile`` and ``--out`` for every
+bench, its own options after), starts a :class:`Measurement` before it measures and finishes it
+after. The record, one JSON file (by default ``{output_dir}/bench/<name>.json``,
+``plan.Layout.bench``), holds the commit, the machine (CPU model, cores, memory, load average
+before and after), the date, the settings that differ from the defaults, and the figures:
 
-    measurement = Measurement("footing_domain", settings={"path": PATH})
+    parser = bench_parser("footing_domain", __doc__)
+    args = parser.parse_args()                       # args.config: the loaded config; args.out: the record
+    measurement = parser.measurement(args, path=PATH)
     ...  # measure
     measurement.finish(rows, args.out)
 
@@ -14,6 +19,7 @@ finds this module beside them."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import platform
@@ -23,7 +29,12 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
+from granular_multiscale.analysis.metrics import curve_errors
 from granular_multiscale.analysis.tables import machine_description
+from granular_multiscale.config import CONFIG_DIR, load_config
+from granular_multiscale.plan import Layout
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -50,6 +61,15 @@ def config_difference(config: dict, defaults: dict) -> dict:
     return difference
 
 
+def _json_value(value):
+    """What json cannot write by itself: numpy scalars and arrays, paths."""
+    if isinstance(value, (np.generic, np.ndarray)):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    return float(value)
+
+
 class Measurement:
     """One bench's measurement: the machine and its load before, and after, the work."""
 
@@ -73,9 +93,91 @@ class Measurement:
         out = Path(out)
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = out.with_name(f".{out.name}.tmp")
-        tmp.write_text(json.dumps(record, indent=1, default=float) + "\n")
+        tmp.write_text(json.dumps(record, indent=1, default=_json_value) + "\n")
         os.replace(tmp, out)  # a reader never sees half a record
         return record
+
+
+# --------------------------------------------------------------------------------------
+# the command line and the config
+
+
+def bench_config(configfile=None, overrides: dict | None = None) -> dict:
+    """The config a bench runs with: config/config.yaml with the --configfile files merged over it
+    in order, as Snakemake merges them over the Snakefile's config, then `overrides` (dotted keys)."""
+    return load_config([CONFIG_DIR / "config.yaml", *(configfile or [])], overrides)
+
+
+class BenchParser(argparse.ArgumentParser):
+    """The command line of one bench: ``--configfile`` and ``--out``, then the bench's own options.
+    ``parse_args`` loads the config (``args.config``) and, without ``--out``, puts the record where
+    the plan's layout puts a bench record of that config (``args.out``)."""
+
+    def __init__(self, name: str, doc: str, configfile: list[str] | None = None, out: Path | None = None):
+        super().__init__(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+        self.bench = name
+        self.add_argument("--configfile", nargs="+", default=configfile, metavar="FILE",
+                          help="config files merged over config/config.yaml in order, as Snakemake's --configfile "
+                               f"(default: {' '.join(configfile) if configfile else 'none, config/config.yaml alone'})")
+        self.add_argument("--out", type=Path, default=out, metavar="FILE",
+                          help=f"the JSON record (default: {out or f'{{output_dir}}/bench/{name}.json of the config'})")
+
+    def parse_args(self, args=None, namespace=None):
+        parsed = super().parse_args(args, namespace)
+        parsed.bench = self.bench
+        parsed.config = bench_config(parsed.configfile)
+        if parsed.out is None:
+            parsed.out = Path(Layout(parsed.config["output_dir"]).bench(self.bench))
+        return parsed
+
+    def measurement(self, args, **settings) -> Measurement:
+        """Start this bench's measurement. Its settings: the options given other than their defaults,
+        the keys of the config that differ from config/config.yaml's, and `settings`."""
+        options = {key: value for key, value in vars(args).items()
+                   if key not in ("bench", "config", "out") and value != self.get_default(key)}
+        difference = config_difference(args.config, bench_config())
+        return Measurement(self.bench, {**options, **({"config_difference": difference} if difference else {}),
+                                        **settings})
+
+
+def bench_parser(name: str, doc: str, configfile: list[str] | None = None, out: Path | None = None) -> BenchParser:
+    """The command line of the bench `name` (the name of its record), described by its docstring `doc`;
+    `configfile`: the config files it runs with by default (config/config.yaml alone without);
+    `out`: its record by default, for a record kept outside the output_dir."""
+    return BenchParser(name, doc, configfile, out)
+
+
+def run_folder(args) -> Path:
+    """Where a bench keeps the run files it writes (and reuses), beside its record."""
+    return args.out.parent / f"{args.bench}_runs"
+
+
+def require_files(*files, hint: str) -> None:
+    """Stop the bench, naming the first input file that is missing and what makes it."""
+    for file in files:
+        if not Path(file).is_file():
+            raise SystemExit(f"{file} not found: {hint}")
+
+
+# --------------------------------------------------------------------------------------
+# how far a run is from a reference
+
+
+def curve_error_pct(reference, run, quantity: str = "top_force") -> dict[str, float]:
+    """Per load phase ('all' first, then loading, unloading, reloading): the max over the steps of
+    |`quantity` − reference's|, in % of the reference's peak magnitude (``analysis.metrics.curve_errors``;
+    a run that stopped early, attribute completed = 0, over the steps it reached). Only the load
+    curves are compared: a global quantity compares across meshes too (a quarter model
+    or one RVE against the full specimen), which the Gauss-point check of curve_errors would refuse."""
+    curves = [ds[[name for name in ds.data_vars if set(ds[name].dims) <= {"step"}]] for ds in (reference, run)]
+    errors = curve_errors(*curves).query("quantity == @quantity")
+    return dict(zip(errors["phase"], errors["max_error_percent_of_peak"].astype(float)))
+
+
+def top_force_error_pct(reference, run, phase: str = "all") -> float:
+    """Max over the path (or over one load phase) of |top force − reference's|, in % of the
+    reference's peak top force."""
+    return curve_error_pct(reference, run, "top_force")[phase]
 
 
 # --------------------------------------------------------------------------------------
@@ -110,6 +212,17 @@ def variant_name(variant: dict) -> str:
 # --------------------------------------------------------------------------------------
 # networks for the FEM benches: the pipeline's, or trained here on the elastoplastic reference
 
+NETWORKS = ("sigma", "tangent")  # NNσ and ND, the networks rule fem_ml puts at the Gauss points
+
+
+def pipeline_models(config: dict, folder: str | Path | None = None) -> tuple[Path, Path]:
+    """The pipeline's NNσ and ND: the files the plan's layout names under the config's output_dir,
+    or those of the same names in `folder` (the models folder of another run)."""
+    files = [Path(Layout(config["output_dir"]).model(network)) for network in NETWORKS]
+    if folder is not None:
+        files = [Path(folder) / file.name for file in files]
+    return files[0], files[1]
+
 
 def train_elastoplastic_models(config, elements, folder: Path, logger=None, **settings) -> tuple[Path, Path]:
     """NNσ and ND trained on the elastoplastic reference run of the training path on a mesh of
@@ -126,21 +239,21 @@ def train_elastoplastic_models(config, elements, folder: Path, logger=None, **se
                            load_paths_from_config(config)[config["training_path"]], progress=False)
     train_ds, heldout_ds = build_dataset(reference, config["surrogate"]["train_fraction"], config["seed"],
                                          split=config["surrogate"]["split"])
-    files = []
-    for kind in ("sigma", "tangent"):
+    files = dict(zip(NETWORKS, pipeline_models(config, folder)))
+    for kind, file in files.items():
         model, _, _ = train(train_ds, heldout_ds, kind, dict(config["surrogate"], **settings), config["seed"],
                             config=config, logger=logger)
-        files.append(Path(folder) / f"nn_{kind}.pt")
-        model.save(files[-1])
-    return files[0], files[1]
+        model.save(file)
+    return files["sigma"], files["tangent"]
 
 
 def surrogate_models(config, models_dir, problem, logger):
     """The pipeline's networks in `models_dir`, or (without it) networks trained here briefly on the
     elastoplastic reference; returns the two model files and a note saying which."""
     if models_dir:
-        folder = Path(models_dir)
-        return folder / "nn_sigma.pt", folder / "nn_tangent.pt", f"pipeline models in {folder}"
+        sigma, tangent = pipeline_models(config, models_dir)
+        require_files(sigma, tangent, hint="pass the models folder of a finished run")
+        return sigma, tangent, f"pipeline models in {models_dir}"
     # at least 2×2 elements across: one element across keeps ε12 at round-off, which the
     # networks' min–max scaling would turn into noise
     elements = tuple(max(n, m) for n, m in zip(problem.elements, (2, 2, 4)))

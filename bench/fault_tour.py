@@ -6,9 +6,10 @@ config values, bad output directories, broken config files, locks left behind or
 For each fault: the first line the user reads on the terminal about it, the exit status, and
 whether the rerun that follows (after the fix the message asks for, if any) gives the numbers of
 a clean run bit for bit (timings aside). It prints a Markdown table and writes it, with the
-commit, date and machine, to --out (JSON). About 10 minutes on 2 cores:
+commit, date and machine, to the record (--out, default {output_dir}/bench/fault_tour.json).
+About 10 minutes on 2 cores:
 
-    .venv/bin/python bench/fault_tour.py --out results/fault_tour.json
+    .venv/bin/python bench/fault_tour.py
 
 The tests (tests/test_faults.py, tests/test_config_values.py, tests/test_error_messages.py)
 assert one fault of each class; this tour tries many, end to end through the command line.
@@ -16,7 +17,6 @@ assert one fault of each class; this tour tries many, end to end through the com
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import re
@@ -34,7 +34,7 @@ import yaml
 
 from granular_multiscale.data import read_run
 
-from common import Measurement
+from common import bench_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -280,12 +280,11 @@ def dem_faults(tour: Tour) -> None:
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", default="results/fault_tour.json")
+    parser = bench_parser("fault_tour", __doc__)
     args = parser.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="fault_tour."))
     tour = Tour(work)
-    measurement = Measurement("fault_tour")
+    measurement = parser.measurement(args)
     started = time.time()
     try:
         config_faults(tour)
