@@ -42,11 +42,9 @@ report: "workflow/report/workflow.rst"
 
 onstart:
     take_output_lock()
-    config.pop("headline", None)  # jobs never see the report's front-page numbers
 
 
 onsuccess:
-    show_headline()  # the numbers this run has just written, for --report-after-run
     output_lock.release(L.out)
 
 

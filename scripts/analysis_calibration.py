@@ -9,9 +9,9 @@ def main(sm) -> None:
     logger = setup_logging(sm.log[0])
     p = sm.params
     with timed_rule(logger, f"{sm.rule} -> {', '.join(map(str, sm.output))}"):
-        table = calibration.make_calibration(sm.input.surrogate, sm.input.reference, sm.output.figure,
-                                             sm.output.csv, sm.output.html, p.settings, path_label=p.path_label,
-                                             reference_label=p.reference_label, surrogate_label=p.surrogate_label)
+        table, _ = calibration.make_calibration(sm.input.surrogate, sm.input.reference, sm.output.figure,
+                                                sm.output.csv, sm.output.html, p.settings, path_label=p.path_label,
+                                                reference_label=p.reference_label, surrogate_label=p.surrogate_label)
         logger.info("%s", table.to_string(index=False))
 
 

@@ -19,8 +19,8 @@ def main(sm) -> None:
         elif p.kind == "stress_strain":
             runs = dict(zip(p.labels, sm.input.runs))
             outs = dict(zip(p.points, sm.output))
-            chosen = products.make_stress_strain(runs, sm.input.train, sm.input.heldout, outs, settings,
-                                                 path_label=p.path_label)
+            chosen, _ = products.make_stress_strain(runs, sm.input.train, sm.input.heldout, outs, settings,
+                                                    path_label=p.path_label)
             logger.info("Gauss points: %s", chosen)
         elif p.kind == "global_response":
             products.make_global_response(dict(zip(p.labels, sm.input.runs)), sm.output[0], settings,

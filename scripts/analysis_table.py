@@ -1,4 +1,5 @@
-"""Rules table_* and headline: the report's tables (CSV + HTML) and its headline numbers."""
+"""Rules table_* and headline: the report's tables (CSV + HTML), its headline numbers (JSON) and
+headline page (HTML)."""
 
 from granular_multiscale.analysis import products, tables
 from granular_multiscale.runlog import setup_logging, timed_rule
@@ -25,10 +26,10 @@ def main(sm) -> None:
                                                  reference_label=p.reference_label,
                                                  surrogate_label=p.surrogate_label, path_label=p.path_label)
         elif p.kind == "headline":
-            table = products.make_headline(sm.input.speedup, sm.input.accuracy, sm.output[0], config=sm.config,
+            table = products.make_headline(sm.input.speedup, sm.input.accuracy, sm.output.json, config=sm.config,
                                            reference_label=p.reference_label, surrogate_label=p.surrogate_label,
                                            ablation_label=p.ablation_label, reference_run=sm.input.reference,
-                                           cost_csv=sm.input.cost)
+                                           cost_csv=sm.input.cost, page=sm.output.page)
         else:
             raise ValueError(f"unknown table kind {p.kind!r}")
         logger.info("%s", table)

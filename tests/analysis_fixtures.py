@@ -141,7 +141,8 @@ def solve(config: dict, material: str, path_name: str, overrides: dict | None = 
 
 
 def write_analysis_inputs(out_dir, config: dict) -> dict:
-    """Every file the analysis rules read, for the validation path, under ``out_dir``.
+    """Every file the analysis rules read, for the validation path, where the plan's layout
+    under ``out_dir`` puts it.
 
     reference = the elastoplastic model; 'FEM–ML' = the same model with 5 % stiffer elasticity
     and 5 % less hardening (a close imitation); 'no history' = linear elasticity (no loop);
@@ -151,33 +152,35 @@ def write_analysis_inputs(out_dir, config: dict) -> dict:
     import pandas as pd
 
     from granular_multiscale.data import write_run
+    from granular_multiscale.plan import Layout
 
-    out = Path(out_dir)
+    layout = Layout(out_dir)
     path = config["validation_path"]
     reference, cfg = solve(config, "elastoplastic", path)
-    write_run(reference, out / "fem_elastoplastic" / f"{path}.h5", cfg)
+    write_run(reference, layout.run("fem_elastoplastic", path), cfg)
     E = cfg["elastoplastic"]["youngs_modulus"]
     close, _ = solve(config, "elastoplastic", path, {
         "youngs_modulus": 1.05 * E,
         "saturated_hardening": 0.95 * cfg["elastoplastic"]["saturated_hardening"],
     })
     close.attrs["method"] = "fem_ml_nn"
-    write_run(close, out / "fem_ml" / f"{path}.h5", cfg)
+    write_run(close, layout.fem_ml(path), cfg)
     elastic, _ = solve(config, "linear_elastic", path, {"youngs_modulus": 0.3 * E})
     elastic.attrs["method"] = "fem_ml_nn_nohist"
-    write_run(elastic, out / "fem_ml_nohist" / f"{path}.h5", cfg)
+    write_run(elastic, layout.run("fem_ml_nohist", path), cfg)
     train_gp, heldout_gp = split_gauss_points(reference.sizes["gp"], seed=cfg["seed"])
     for name, ids in (("train", train_gp), ("heldout", heldout_gp)):
         subset = reference[["strain", "stress", "gp_position"]].sel(gp=ids)
-        (out / "dataset").mkdir(parents=True, exist_ok=True)
-        subset.to_netcdf(out / "dataset" / f"{name}.h5", engine="h5netcdf")
+        Path(layout.dataset(name)).parent.mkdir(parents=True, exist_ok=True)
+        subset.to_netcdf(layout.dataset(name), engine="h5netcdf")
     epochs = np.arange(1, 31)
-    (out / "training").mkdir(parents=True, exist_ok=True)
     for name, level in (("sigma", 0.02), ("tangent", 0.04), ("sigma_nohist", 0.05), ("tangent_nohist", 0.07)):
+        curve = Path(layout.training(f"{name}.csv"))
+        curve.parent.mkdir(parents=True, exist_ok=True)
         pd.DataFrame({
             "epoch": epochs,
             "train_loss": level * (1 + 5 / epochs),
             "heldout_loss": 1.1 * level * (1 + 5 / epochs),
             "elapsed_s": 0.01 * epochs,
-        }).to_csv(out / "training" / f"{name}.csv", index=False)
+        }).to_csv(curve, index=False)
     return {"reference": reference, "train_gp": train_gp, "heldout_gp": heldout_gp}

@@ -24,6 +24,7 @@ import pandas as pd
 import pytest
 import torch
 import yaml
+import figure_checks as check
 from dem_fixtures import ROOT, SETTINGS, packing, tiny_config
 
 from granular_multiscale.adaptive.material import anchor_points, residual_correction
@@ -37,6 +38,7 @@ from granular_multiscale.drivers.fem_ml import run_fem_ml
 from granular_multiscale.drivers.reference import run_fem_reference
 from granular_multiscale.materials.elastoplastic import Elastoplastic
 from granular_multiscale.paths import load_paths_from_config
+from granular_multiscale.plan import Layout
 from granular_multiscale.surrogate.dataset import build_dataset
 from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
 from granular_multiscale.surrogate.training import train
@@ -383,14 +385,16 @@ def test_rule_writes_the_run_its_log_and_benchmark(setup, between, tmp_path):
     config, packings, sigma = setup
     threshold, run, points = between
     out = tmp_path / "out"
-    for source, target in ((packings[0], out / "rve" / "packing_0.yade.gz"), (sigma, out / "models" / "nn_sigma.pt"),
-                           (sigma, out / "models" / "nn_tangent.pt")):  # the autodiff tangent reads no ND
+    L = Layout(out)
+    for source, target in ((packings[0], L.packings(1)[0]), (sigma, L.model("sigma")),
+                           (sigma, L.model("tangent"))):  # the autodiff tangent reads no ND
+        target = Path(target)
         target.parent.mkdir(parents=True, exist_ok=True)
         target.write_bytes(open(source, "rb").read())
     config = {**config, "output_dir": str(out), "adaptive": {**config["adaptive"], "thresholds": [threshold, 0.5]},
               "surrogate": {**config["surrogate"], "tangent": "autodiff"}}
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
-    target = out / "adaptive" / f"t{threshold:g}" / "p.h5"
+    target = Path(L.adaptive(f"t{threshold:g}", "p"))
     snakemake = Path(sys.executable).with_name("snakemake")
     result = subprocess.run([str(snakemake), "-j2", "--configfile", str(tmp_path / "config.yaml"), "--allowed-rules",
                              "adaptive", "--", str(target)], cwd=ROOT, capture_output=True, text=True, timeout=300)
@@ -399,7 +403,7 @@ def test_rule_writes_the_run_its_log_and_benchmark(setup, between, tmp_path):
     assert written.attrs["adaptive_threshold"] == threshold
     assert_same(written, run, SAME + ("point_mode", "promotions", "replay_particle_steps"))
     # its control (rule adaptive_control): the elastoplastic model with the run's DEM points
-    control = out / "adaptive" / f"t{threshold:g}_elastoplastic" / "p.h5"
+    control = L.adaptive(f"t{threshold:g}_elastoplastic", "p")
     result = subprocess.run([str(snakemake), "-j2", "--configfile", str(tmp_path / "config.yaml"), "--allowed-rules",
                              "adaptive_control", "--", str(control)], cwd=ROOT, capture_output=True, text=True,
                             timeout=300)
@@ -407,11 +411,11 @@ def test_rule_writes_the_run_its_log_and_benchmark(setup, between, tmp_path):
     control = read_run(control)
     assert control.attrs["adaptive_control"] == "elastoplastic" and control.attrs["adaptive_threshold"] == threshold
     assert np.array_equal(control.point_mode.values, run.point_mode.values)
-    dem_points = read_run(target.parent / "dem_points" / "p.h5", required=DEM_TRAJECTORY_VARIABLES)
+    dem_points = read_run(L.adaptive_dem_points(f"t{threshold:g}", "p"), required=DEM_TRAJECTORY_VARIABLES)
     assert_same(dem_points, points, ("strain", "stress", "tangent", "valid", "promoted_at"))
-    log = (out / "logs" / "adaptive" / f"t{threshold:g}" / "p.log").read_text()
+    log = Path(L.log(f"adaptive/t{threshold:g}/p")).read_text()
     assert "promoted to DEM" in log and "particle-steps (trials" in log
-    assert (out / "benchmarks" / "adaptive" / f"t{threshold:g}" / "p.tsv").exists()
+    assert Path(L.benchmark(f"adaptive/t{threshold:g}/p")).exists()
 
 
 @pytest.mark.needs_yade
@@ -444,14 +448,27 @@ def test_report_rows_curve_and_mode_map(setup, between, fem_ml_run, fem_dem_run,
     table, _ = products.speed_error_table(tmp_path / "speedup.csv", tmp_path / "accuracy.csv", curve)
     assert table.set_index("label")["curve"].to_dict() == {"FEM–DEM": 2.0, "FEM–ML": 0.0, adaptive_label: 1.0}
     settings = {**config["analysis"], "field_steps": [2, 4, -1]}
-    products.make_speed_vs_error(tmp_path / "speedup.csv", tmp_path / "accuracy.csv", tmp_path / "speed.png",
-                                 settings, curve=curve)
-    products.make_mode_map({adaptive_label: files[adaptive_label]}, tmp_path / "modes.png", settings, path_label="P")
-    for png in ("speed.png", "modes.png"):
-        assert (tmp_path / png).stat().st_size > 10_000
+    drawn = products.make_speed_vs_error(tmp_path / "speedup.csv", tmp_path / "accuracy.csv", tmp_path / "speed.png",
+                                         settings, curve=curve)
+    check.check_speed_vs_error(drawn, tmp_path / "speedup.csv", tmp_path / "accuracy.csv")
+    for column, points in drawn.items():  # the line joins FEM–ML, the adaptive run and FEM–DEM, in that order
+        check.assert_curve(points["curve"], [points[label][0] for label in curve],
+                           [points[label][1] for label in curve], f"curve of {column}")
+    modes = products.make_mode_map({adaptive_label: files[adaptive_label]}, tmp_path / "modes.png", settings,
+                                   path_label="P")
+    width = settings["figure_width"]
+    check.check_png(tmp_path / "speed.png", products._size(settings, "speed"), products._dpi(settings))
+    check.check_png(tmp_path / "modes.png", (width, 0.4 * width), products._dpi(settings))
     # the map's colour: the DEM share of the points at each (x, z), 2 behind each other on this mesh
     columns, share = figures.dem_share_xz(run, STEPS)
     assert len(columns) == 8 and np.isclose(2 * share.sum(), run.point_mode.values[STEPS].sum())
+    position = run.gp_position.transpose("gp", "xyz").values
+    mode = run.point_mode.transpose("step", "gp").values
+    assert list(modes) == [adaptive_label] and list(modes[adaptive_label]) == [2, 4, run.sizes["step"] - 1]
+    for step, (columns, share) in modes[adaptive_label].items():
+        at = [np.isclose(position[:, 0], x) & np.isclose(position[:, 2], z) for x, z in columns]
+        assert len(columns) == 8 and all(a.sum() == 2 for a in at)
+        np.testing.assert_array_equal(share, [mode[step, a].mean() for a in at], err_msg=f"step {step}")
 
 
 @pytest.mark.needs_yade
@@ -467,9 +484,11 @@ def test_one_round_of_active_learning(setup, between, fem_dem_run, tmp_path):
     config, packings, sigma = setup
     threshold, run, points = between
     out = tmp_path / "out"
+    L = Layout(out)
     # in the order of their making, so that no rule but those of the round is out of date
-    for source, target in ((packings[0], out / "rve" / "packing_0.yade.gz"), (None, out / "fem_dem" / "p.h5"),
-                           (sigma, out / "models" / "nn_sigma.pt"), (sigma, out / "models" / "nn_tangent.pt")):
+    for source, target in ((packings[0], L.packings(1)[0]), (None, L.run("fem_dem", "p")),
+                           (sigma, L.model("sigma")), (sigma, L.model("tangent"))):
+        target = Path(target)
         target.parent.mkdir(parents=True, exist_ok=True)
         if source is None:
             write_run(fem_dem_run, target)
@@ -487,15 +506,16 @@ def test_one_round_of_active_learning(setup, between, fem_dem_run, tmp_path):
                             capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
     label = f"t{threshold:g}"
-    first = read_run(out / "adaptive" / label / "p.h5")
+    first = read_run(L.adaptive(label, "p"))
     assert_same(first, run, SAME + ("point_mode", "promotions"))
-    again = read_run(out / "active" / "adaptive" / label / "p.h5")
+    again = read_run(L.adaptive(label, "p", round="active/"))
     assert again.attrs["adaptive_threshold"] == threshold and again.attrs["surrogate_sigma_model"].endswith("active/models/nn_sigma.pt")
     # the round's training data: the pipeline's sources and the first run's DEM points
-    sources = np.concatenate([read_dataset(out / "active" / "dataset" / f).source.values for f in ("train.h5", "heldout.h5")])
-    assert (sources == str(out / "adaptive" / label / "dem_points" / "p.h5")).sum() == points.sizes["gp"] > 0
-    assert (sources == str(out / "fem_dem" / "p.h5")).sum() == 16
-    table = pd.read_csv(out / "tables" / "active_learning.csv").set_index("round")
+    sources = np.concatenate([read_dataset(L.dataset(split, round="active/")).source.values
+                              for split in ("train", "heldout")])
+    assert (sources == L.adaptive_dem_points(label, "p")).sum() == points.sizes["gp"] > 0
+    assert (sources == L.run("fem_dem", "p")).sum() == 16
+    table = pd.read_csv(L.table("active_learning.csv")).set_index("round")
     assert table.index.tolist() == ["FEM–ML", "first", "after one round"]
     for name, ds in (("first", first), ("after one round", again)):
         row = table.loc[name]

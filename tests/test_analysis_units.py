@@ -404,3 +404,147 @@ def test_headline_states_what_ran_from_the_reference_run(tmp_path, uniform):
                                          surrogate_label="FEM–ML (nn tangent)", ablation_label=None)
     for key in ("gauss_points_modelled", "material_points_evaluated", "mesh_elements", "symmetry", "uniform_field"):
         assert from_config[key] == headline[key], key
+
+
+
+def plain_text(page: str) -> str:
+    """The text of an HTML page, tags dropped and whitespace collapsed."""
+    import re
+
+    return re.sub(r"\s+", " ", re.sub(r"<[^>]+>", "", page.split("<body>", 1)[1]))
+
+
+def test_the_headline_page_states_the_numbers_of_headline_json(tmp_path):
+    """The report's headline page (rule headline writes it with tables/headline.json): what ran,
+    the reference's tolerance, the machine, speedup, cost, break-even and errors, each the number
+    of headline.json as headline_display writes it."""
+    import json
+
+    from granular_multiscale import integrity
+    from granular_multiscale.analysis import products
+    from granular_multiscale.data import write_run
+
+    products.make_surrogate_cost(write_cost_inputs(tmp_path), tmp_path / "speedup.csv", tmp_path / "cost.csv",
+                                 tmp_path / "cost.html", reference_label="FEM–DEM (150 spheres)",
+                                 surrogate_label="FEM–ML (nn tangent)", path_label="Path2")
+    run = quarter_run(method="dem", uniform_field=1, newton_tolerance=2e-3, newton_predictor="extrapolate",
+                      newton_acceleration="anderson")
+    steps = run.sizes["step"]
+    run["material_evaluations"] = ("step", np.full(steps, 3))
+    run["cutbacks"] = ("step", np.zeros(steps, dtype=int))
+    run["residual_relative"] = ("step", np.linspace(0.0, 1.87e-3, steps))
+    write_run(run, tmp_path / "path2.h5", {})
+    pd.DataFrame([{"method": "FEM–ML (nn tangent)", "top_force_max_rel_pct": 2.414, "stress_mae_heldout_kpa": 1.9512},
+                  {"method": "FEM–ML, no history", "top_force_max_rel_pct": 5.02, "stress_mae_heldout_kpa": 3.01}]
+                 ).to_csv(tmp_path / "accuracy.csv", index=False)
+    products.make_headline(tmp_path / "speedup.csv", tmp_path / "accuracy.csv", tmp_path / "headline.json",
+                           config={**CONFIG, "specimen": {**CONFIG["specimen"], "uniform_field": True}},
+                           reference_label="FEM–DEM (150 spheres)", surrogate_label="FEM–ML (nn tangent)",
+                           ablation_label="FEM–ML, no history", reference_run=tmp_path / "path2.h5",
+                           cost_csv=tmp_path / "cost.csv", page=tmp_path / "headline.html")
+    integrity.verify(tmp_path / "headline.html")  # written whole, with its checksum
+    h = json.loads((tmp_path / "headline.json").read_text())
+    d = h["display"]
+    text = plain_text((tmp_path / "headline.html").read_text())
+    assert "e+0" not in text and "e-0" not in text and "None" not in text and "n/a" not in text
+    # the numbers of headline.json, as its display writes them
+    assert (d["speedup"], d["surrogate_wall_time"], d["reference_wall_time"]) == ("1,000×", "0.500 s", "500 s (8.3 min)")
+    assert (f"Speedup {d['speedup']} for one answer: FEM–ML (nn tangent) took {d['surrogate_wall_time']}, "
+            f"FEM–DEM (150 spheres) {d['reference_wall_time']}") in text
+    assert f"Making the surrogate took {d['surrogate_cost']}: RVE preparation 100 s; reference run of Path1 400 s" in text
+    assert d["surrogate_cost"] == "1,000 s (17 min)" and h["break_even_runs"] == 3
+    assert f"It pays back from {d['break_even_runs']} FEM–ML runs of path2 on" in text
+    assert f"Top-force error {d['top_force_max_rel_pct']} of the peak" in text and d["top_force_max_rel_pct"] == "2.41 %"
+    assert f"Held-out stress MAE {d['stress_mae_heldout_kpa']}" in text and d["stress_mae_heldout_kpa"] == "1.95 kPa"
+    assert "Without history variables (FEM–ML, no history): top-force error 5.02 %, held-out stress MAE 3.01 kPa" in text
+    # what ran, from the reference run: quarter symmetry, one RVE for the 16 Gauss points
+    assert ("quarter symmetry (specimen.symmetry: quarter), a mesh of 1 × 1 × 2 elements with 16 of the "
+            "specimen's 64 Gauss points") in text
+    assert "one material point stands for all 16 Gauss points, so the reference evaluated 1 RVE;" in text
+    assert "FEM–ML evaluated the surrogate at 16 points." in text
+    # the reference's tolerance and residual, from its run file; its own error: where it is measured
+    assert h["reference_newton"]["tolerance"] == 2e-3
+    assert ("The reference was solved to a relative residual of 0.002 (largest accepted: 0.0019; extrapolate "
+            "predictor, Anderson mixing).") in text
+    assert "Its own error is measured by the tolerance study" in text and "snakemake -j2 tolerance_study" in text
+    assert f"Measured on {h['machine']['cores']} cores of {h['machine']['cpu']}" in text
+
+
+def test_the_headline_page_leaves_out_what_a_headline_lacks():
+    """A headline without the reference's Newton record, the cost table, the accuracy rows and
+    the ablation (an analytic reference, a FEM–ML run that stopped early): the page states what
+    it has and says what it lacks, with no placeholder; with the reference's own error (a
+    headline that carries reference_convergence) it states that too."""
+    from granular_multiscale.analysis import products
+
+    h = {"reference_material": "elastoplastic", "reference": "FEM, elastoplastic model (reference)",
+         "surrogate": "FEM–ML (nn tangent)", "validation_path": "path2", "gauss_points": 64, "mesh_elements": [2, 2, 2],
+         "symmetry": "none", "uniform_field": False, "gauss_points_modelled": 64, "material_points_evaluated": 64,
+         "surrogate_points_evaluated": 64, "machine": {"cores": 2, "cpu": "Test CPU", "memory_gib": None,
+                                                        "system": "Linux"},
+         "reference_wall_time_s": 0.31, "surrogate_wall_time_s": 1.2, "speedup": 0.2583, "surrogate_completed": False,
+         "surrogate_load_steps": 19, "reference_load_steps": 57, "top_force_max_rel_pct": None,
+         "stress_mae_heldout_kpa": None, "ablation": None, "ablation_top_force_max_rel_pct": None,
+         "ablation_stress_mae_heldout_kpa": None, "surrogate_cost_s": None, "surrogate_cost_items": [],
+         "break_even_runs": None}
+    text = plain_text(products.headline_page(h))
+    assert "None" not in text and "n/a" not in text
+    assert "Speedup 0.258× for one answer: FEM–ML (nn tangent) took 1.20 s, FEM, elastoplastic model (reference) 0.310 s" in text
+    assert "the reference evaluated 64 material points, one per Gauss point" in text
+    assert "does not record its Newton tolerance" in text
+    assert "not in this headline (no surrogate cost table)" in text and "Making the surrogate" not in text
+    assert "FEM–ML (nn tangent) stopped after load step 19 of 57" in text
+    assert "Top-force error" not in text and "Without history variables" not in text
+    assert "Measured on 2 cores of Test CPU (Linux)." in text
+
+    h.update(surrogate_cost_s=3.0, surrogate_cost_items=[{"item": "dataset", "wall_time_s": 3.0}],
+             reference_newton={"tolerance": 1e-8, "predictor": "tangent", "acceleration": "none",
+                               "residual_relative_max": 3.2e-9})
+    text = plain_text(products.headline_page(h))
+    assert "Making the surrogate took 3.00 s: dataset 3.00 s. It never pays back here" in text
+    assert "The reference is the analytic model, not FEM–DEM" in text
+    assert "solved to a relative residual of 0.00000001 (largest accepted: 0.0000000032; tangent predictor)" in text
+    assert "the tolerance study measures FEM–DEM runs, and this reference is the analytic model" in text
+    h.update(reference_material="dem", reference_convergence={
+        "variant": "default", "converged_tolerance": 5e-4, "top_force_max_pct": 0.2834,
+        "volumetric_strain_max_pct": 1.216, "stress_mae_kpa": 0.1104})
+    text = plain_text(products.headline_page(h))
+    assert ("Its own error, measured by the tolerance study (variant default against a run to 0.0005): top force "
+            "within 0.28 % of the peak, volumetric strain within 1.22 % of its peak magnitude, Gauss-point stress "
+            "MAE 0.11 kPa.") in text
+
+
+def test_the_reference_convergence_page_states_the_study_row_solved_like_the_reference(tmp_path):
+    """Rule tolerance_study's page of the reference's own error: the study's row with the Newton
+    settings of the FEM–DEM runs; none when no variant is solved so."""
+    from granular_multiscale import integrity
+    from granular_multiscale.analysis import products
+
+    pd.DataFrame([
+        {"variant": "loose", "tolerance": 2e-2, "predictor": "tangent", "acceleration": "none",
+         "top_force_max_pct": 2.31, "volumetric_strain_max_pct": 11.8, "stress_mae_kpa": 0.9,
+         "evaluations_per_step": 4.0},
+        {"variant": "default", "tolerance": 2e-3, "predictor": "extrapolate", "acceleration": "anderson",
+         "top_force_max_pct": 0.1734, "volumetric_strain_max_pct": 0.8123, "stress_mae_kpa": 0.0561,
+         "evaluations_per_step": 3.0},
+        {"variant": "tight", "tolerance": 5e-4, "predictor": "extrapolate", "acceleration": "anderson",
+         "top_force_max_pct": 0.0, "volumetric_strain_max_pct": 0.0, "stress_mae_kpa": 0.0,
+         "evaluations_per_step": 6.0}]).to_csv(tmp_path / "study.csv", index=False)
+    newton = {"tolerance": 2e-3, "predictor": "extrapolate", "acceleration": "anderson"}
+    found = products.make_reference_convergence(tmp_path / "study.csv", tmp_path / "page.html", newton=newton,
+                                                study_path="Path2", reference_material="dem")
+    integrity.verify(tmp_path / "page.html")
+    assert found["variant"] == "default" and found["converged_tolerance"] == 5e-4
+    text = plain_text((tmp_path / "page.html").read_text())
+    assert ("FEM–DEM runs of this configuration are solved to a relative residual of 0.002 (extrapolate predictor, "
+            "Anderson mixing;") in text
+    assert ("measured by the tolerance study on Path2 (variant default against a run to 0.0005): top force within "
+            "0.17 % of the peak, volumetric strain within 0.81 % of its peak magnitude, Gauss-point stress MAE "
+            "0.06 kPa") in text
+    assert "analytic" not in text
+    missing = products.make_reference_convergence(tmp_path / "study.csv", tmp_path / "none.html",
+                                                  newton=dict(newton, tolerance=1e-3), study_path="Path2",
+                                                  reference_material="elastoplastic")
+    text = plain_text((tmp_path / "none.html").read_text())
+    assert missing is None and "No variant of the tolerance study" in text and "Its own error" not in text
+    assert "This report's reference is the analytic elastoplastic model" in text

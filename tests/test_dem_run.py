@@ -17,6 +17,7 @@ import yaml
 from dem_fixtures import ROOT, TEST_SPHERES, packing, tiny_config
 
 from granular_multiscale.data import read_run
+from granular_multiscale.plan import Layout
 from granular_multiscale.drivers.fem_dem import dem_newton_config, run_fem_dem
 
 pytestmark = pytest.mark.slow
@@ -53,14 +54,15 @@ def test_rules_write_the_data_contract(tmp_path):
     config = tiny_config(out, {"path1": [[3, 0.003], [1, 0.002]], "path2": [[2, 0.002]]})
     config_file = tmp_path / "config.yaml"
     config_file.write_text(yaml.safe_dump(config))
-    targets = [f"{out}/fem_dem/path1.h5", f"{out}/fem_dem/path2.h5"]
+    L = Layout(out)
+    targets = [L.run("fem_dem", "path1"), L.run("fem_dem", "path2")]
     snakemake = Path(sys.executable).with_name("snakemake")
     result = subprocess.run([str(snakemake), "-j2", "--configfile", str(config_file), "--", *targets],
                             cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-4000:]
-    summary = json.loads((out / "rve" / "summary.json").read_text())
+    summary = json.loads(Path(L.packing_summary()).read_text())
     assert summary["n_packings"] == 1 and summary["packings"][0]["n_spheres"] == TEST_SPHERES
-    assert (out / "rve" / "packing_0.yade.gz").stat().st_size > 10_000
+    assert Path(L.packings(1)[0]).stat().st_size > 10_000
     for target, n_steps in zip(targets, (4, 2)):
         ds = read_run(target)
         assert ds.attrs["method"] == "dem" and ds.sizes["step"] == n_steps + 1 and ds.sizes["gp"] == 16
@@ -76,12 +78,12 @@ def test_rules_write_the_data_contract(tmp_path):
         assert ds.attrs["dem_particle_steps"] == pytest.approx(ds.particle_steps.values.sum())
         assert 0 < ds.attrs["dem_share_not_stepping"] < 1
         name = Path(target).stem
-        log = (out / "logs" / "fem_dem" / f"{name}.log").read_text()
+        log = Path(L.log(f"fem_dem/{name}")).read_text()
         assert log.count("axial strain") == n_steps + 1 and "time split" in log
-        assert (out / "benchmarks" / "fem_dem" / f"{name}.tsv").exists()
-        assert not (out / "checkpoints" / "fem_dem" / f"{name}.ckpt").exists()  # removed after success
-        assert not (out / "checkpoints" / "fem_dem" / f"{name}.ckpt.scenes").exists()
-    assert (out / "benchmarks" / "rve.tsv").exists() and "consolidating" in (out / "logs" / "rve.log").read_text()
+        assert Path(L.benchmark(f"fem_dem/{name}")).exists()
+        assert not Path(L.checkpoint(f"fem_dem/{name}")).exists()  # removed after success
+        assert not Path(L.checkpoint(f"fem_dem/{name}") + ".scenes").exists()
+    assert Path(L.benchmark("rve")).exists() and "consolidating" in Path(L.log("rve")).read_text()
 
 
 RUNNER = """
@@ -205,8 +207,9 @@ def test_snakemake_killed_hard_resumes_after_unlock(tmp_path):
     workdir.mkdir()
     snakemake = [str(Path(sys.executable).with_name("snakemake")), "--snakefile", str(ROOT / "Snakefile"),
                  "--configfile", str(config_file)]
-    target = f"{out}/fem_dem/path1.h5"
-    checkpoint = out / "checkpoints" / "fem_dem" / "path1.ckpt"
+    L = Layout(out)
+    target = L.run("fem_dem", "path1")
+    checkpoint = Path(L.checkpoint("fem_dem/path1"))
     proc = subprocess.Popen([*snakemake, "-j2", "--", target], cwd=workdir, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)
     step = _kill_after_step(proc, checkpoint, 3, timeout=600)
@@ -220,6 +223,6 @@ def test_snakemake_killed_hard_resumes_after_unlock(tmp_path):
     assert run("--unlock").returncode == 0
     resumed = run("-j2", "--", target)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
-    log = (out / "logs" / "fem_dem" / "path1.log").read_text()
+    log = Path(L.log("fem_dem/path1")).read_text()
     assert f"resuming from checkpoint {checkpoint} after step {step}" in log
     assert read_run(target).sizes["step"] == 9

@@ -22,6 +22,7 @@ from dem_fixtures import ROOT, packing, tiny_config
 
 from granular_multiscale import integrity, output_lock
 from granular_multiscale.data import DataFileError, read_run
+from granular_multiscale.plan import Layout
 from granular_multiscale.surrogate.dataset import DatasetError, read_dataset
 from granular_multiscale.surrogate.models import ModelFileError, SurrogateModel
 
@@ -70,30 +71,32 @@ def test_corrupt_inputs_are_named_set_aside_and_rebuilt(tmp_path):
     them, rebuilds them, and the FEM–ML run equals the clean run's. (One rerun for the four:
     a rerun per file costs a minute each and proves the same.)"""
     out, options = elastoplastic_chain(tmp_path)
-    target = out / "fem_ml" / "path2.h5"
+    L = Layout(out)
+    target = Path(L.fem_ml("path2"))
     snakemake(["-j2", *options, "--", str(target)])
     clean = tmp_path / "clean.h5"
     shutil.copy(target, clean)
-    readers = {"models/nn_sigma.pt": (lambda p: SurrogateModel.load(p), ModelFileError, "model file"),
-               "dataset/train.h5": (read_dataset, DatasetError, "dataset file"),
-               "fem_elastoplastic/path1.h5": (read_run, DataFileError, "run file"),
-               "rve_paths/designed.h5": (read_run, DataFileError, "run file")}
-    for name, (reader, error, what) in readers.items():  # both damages are named by every reader
-        path = out / name
+    model, dataset, run, rve_paths = (Path(p) for p in (L.model("sigma"), L.dataset("train"),
+                                                        L.run("fem_elastoplastic", "path1"), L.rve_paths("designed")))
+    readers = {model: (lambda p: SurrogateModel.load(p), ModelFileError, "model file"),
+               dataset: (read_dataset, DatasetError, "dataset file"),
+               run: (read_run, DataFileError, "run file"),
+               rve_paths: (read_run, DataFileError, "run file")}
+    for path, (reader, error, what) in readers.items():  # both damages are named by every reader
         for damage in (lambda p: flip(p, 12000), truncate):
             kept = path.read_bytes()
             damage(path)
             with pytest.raises(error, match=f"{what} {path} is corrupt"):
                 reader(path)
             path.write_bytes(kept)
-    flip(out / "models/nn_sigma.pt", 12000)
-    truncate(out / "dataset/train.h5")
-    flip(out / "fem_elastoplastic/path1.h5", 20000)
-    truncate(out / "rve_paths/designed.h5")
+    flip(model, 12000)
+    truncate(dataset)
+    flip(run, 20000)
+    truncate(rve_paths)
     rerun = snakemake(["-j2", *options, "--", str(target)])
-    for name in readers:
-        assert f"{out / name} set aside in {out}/corrupt/" in rerun.stderr, (name, rerun.stderr[-3000:])
-        integrity.verify(out / name)
+    for path in readers:
+        assert f"{path} set aside in {out}/corrupt/" in rerun.stderr, (path, rerun.stderr[-3000:])
+        integrity.verify(path)
     assert f"{target} set aside" in rerun.stderr and "built from" in rerun.stderr
     assert len(list((out / "corrupt").iterdir())) == 1  # one folder for the rerun that set files aside
     same_numbers(clean, target)
@@ -105,12 +108,13 @@ def test_a_step_too_large_to_converge_fails_its_rule(tmp_path):
     out, options = elastoplastic_chain(tmp_path, load_paths={"huge": {"segments": [[1, 0.25]]}}, training_path="huge",
                                        validation_path="huge", surrogate={"training_sources": ["huge"]},
                                        newton={"max_cutbacks": 0, "max_iterations": 1})
-    result = snakemake(["-j1", *options, "--", f"{out}/fem_elastoplastic/huge.h5"], check=False)
+    L = Layout(out)
+    result = snakemake(["-j1", *options, "--", L.run("fem_elastoplastic", "huge")], check=False)
     assert result.returncode != 0
     assert "load step 1 (axial strain 0 -> 0.25) did not converge after 0 cutbacks" in result.stderr
     assert result.stderr.count("Traceback (most recent call last)") == 0, result.stderr[-3000:]
-    assert "Traceback" in (out / "logs" / "fem_elastoplastic" / "huge.log").read_text()
-    assert not (out / "fem_elastoplastic" / "huge.h5").exists()
+    assert "Traceback" in Path(L.log("fem_elastoplastic/huge")).read_text()
+    assert not Path(L.run("fem_elastoplastic", "huge")).exists()
 
 
 def _clone(tmp_path) -> Path:
@@ -129,7 +133,7 @@ def test_a_second_workflow_on_one_output_directory_stops(tmp_path):
     before any job, naming the first (pid, host, start); once the first is done, the second
     finds nothing to do."""
     out, options = elastoplastic_chain(tmp_path)
-    target = out / "fem_ml" / "path2.h5"
+    target = Layout(out).fem_ml("path2")
     first = subprocess.Popen([*SNAKEMAKE, "-j1", *options, "--", str(target)], cwd=ROOT, stdout=subprocess.DEVNULL,
                              stderr=subprocess.PIPE, text=True)
     lock = output_lock.lock_file(out)
@@ -220,7 +224,8 @@ def test_a_corrupt_packing_is_named_and_rebuilt(tmp_path):
     override = tmp_path / "override.yaml"
     override.write_text(yaml.safe_dump({"output_dir": str(out), "dem": {"n_spheres": 100}}))
     options = ["--configfile", str(ROOT / "config" / "tiny.yaml"), str(override)]
-    packing_file, summary_file = out / "rve" / "packing_0.yade.gz", out / "rve" / "summary.json"
+    L = Layout(out)
+    packing_file, summary_file = Path(L.packings(1)[0]), Path(L.packing_summary())
 
     def state():
         (summary,) = json.loads(summary_file.read_text())["packings"]

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from granular_multiscale.data import read_run
+from granular_multiscale.plan import Layout
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -15,7 +16,8 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.mark.slow
 def test_fem_elastoplastic_rule_writes_both_paths(tmp_path):
     out = tmp_path / "x"
-    targets = [f"{out}/fem_elastoplastic/path1.h5", f"{out}/fem_elastoplastic/path2.h5"]
+    L = Layout(out)
+    targets = [L.run("fem_elastoplastic", "path1"), L.run("fem_elastoplastic", "path2")]
     snakemake = Path(sys.executable).with_name("snakemake")
     command = [str(snakemake), "-j2", "--configfile", "config/tiny.yaml",
                "--config", "reference_material=elastoplastic", f"output_dir={out}", "--", *targets]
@@ -40,5 +42,5 @@ def test_fem_elastoplastic_rule_writes_both_paths(tmp_path):
         assert decrements[0] < 0
         assert q[unloading].min() > (0.1 * q[np.flatnonzero(unloading)[0] - 1] if name == "path2" else -0.05 * q[-1])
         assert np.all(ds.cutbacks.values == 0)
-        assert (out / "logs" / "fem_elastoplastic" / f"{name}.log").read_text().count("axial strain") == steps[name]
-        assert (out / "benchmarks" / "fem_elastoplastic" / f"{name}.tsv").exists()
+        assert Path(L.log(f"fem_elastoplastic/{name}")).read_text().count("axial strain") == steps[name]
+        assert Path(L.benchmark(f"fem_elastoplastic/{name}")).exists()

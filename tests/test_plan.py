@@ -41,6 +41,11 @@ def test_layout_puts_every_kind_of_file_in_its_folder():
     assert L.vtk("fem_ml", "path2") == "out/vtk/fem_ml/path2"
 
 
+def test_a_bench_record_goes_under_the_output_dir():
+    assert Layout("out/").bench("fem_ml") == "out/bench/fem_ml.json"
+    assert plan_of("tiny.yaml", output_dir="results/tiny").layout.bench("dem") == "results/tiny/bench/dem.json"
+
+
 def test_the_default_scale_trains_on_path1_and_rve_paths_and_validates_on_path2():
     plan = plan_of("config.yaml")
     assert plan.reference == "fem_dem" and plan.path_names == ["path1", "path2"]
@@ -165,3 +170,12 @@ def test_the_plan_imports_no_snakemake_and_opens_no_file():
     assert not any(m.startswith("snakemake") for m in imported)
     calls = {n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)}
     assert "open" not in calls
+
+
+def test_the_reference_newton_settings_are_those_the_fem_dem_runs_solve_with():
+    from granular_multiscale.drivers.fem_dem import dem_newton_config
+
+    for plan in (plan_of("config.yaml"), plan_of("config.yaml", dem={"newton": {"tolerance": 5e-4}})):
+        solved = dem_newton_config(plan.config)["newton"]
+        assert plan.reference_newton == {key: solved[key] for key in ("tolerance", "predictor", "acceleration")}
+    assert plan.reference_newton["tolerance"] == 5e-4

@@ -1,10 +1,11 @@
 """The workflow at the tiny scale, on the elastoplastic reference and on FEM–DEM with real
 YADE RVEs, then the HTML report: Snakemake must build every figure and table from scratch, and
-`snakemake --report` must put each of them, with its caption, and the headline numbers into one
-self-contained file. A FEM–ML run that stops early (it may on the tiny scale's noisy 150-sphere
+`snakemake --report` must put each of them, with its caption, the headline page among them, into
+one self-contained file. A FEM–ML run that stops early (it may on the tiny scale's noisy 150-sphere
 DEM data) must still reach the report, labelled as such."""
 
 import base64
+import html as html_module
 import json
 import re
 import subprocess
@@ -14,10 +15,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import xarray as xr
 import yaml
 from PIL import Image
 
+import figure_checks as check
+from granular_multiscale.config import load_config
 from granular_multiscale.data import read_run
+from granular_multiscale.plan import FIELD_QUANTITIES, Plan, path_label
 
 ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
@@ -35,14 +40,19 @@ FIGURES = [
     "speed_vs_error.png",
     "calibration.png",
 ]
-PROBLEM_PRODUCTS = ["figures/biaxial/response.png", "figures/biaxial/fields_biaxial.png", "figures/footing/response.png",
-                    "figures/footing/fields_footing.png", "tables/biaxial_bands.csv", "tables/footing.csv",
-                    "tables/rve_angles.csv", "tables/visited_states.csv", "vtk/biaxial/biaxial", "vtk/footing/footing",
-                    *[f"{kind}/{p}/{name}_{p}.{ext}" for p in ("biaxial", "footing") for kind, name, ext in
-                      [("tables", "surrogate", "csv"), ("figures", "surrogate_response", "png"),
-                       ("figures", "error_map", "png")]]]
 TABLES = ["speedup.csv", "speedup.html", "accuracy.csv", "accuracy.html", "surrogate_cost.csv", "surrogate_cost.html",
           "calibration.csv", "calibration.html", "validation_by_phase.csv", "validation_by_phase.html"]
+
+
+def problem_products(L):
+    """The figures and tables of the problems beyond the triaxial specimen, and their VTK folders."""
+    items = [L.figure("biaxial/response.png"), L.figure("biaxial/fields_biaxial.png"), L.figure("footing/response.png"),
+             L.figure("footing/fields_footing.png"), L.table("biaxial_bands.csv"), L.table("footing.csv"),
+             L.table("rve_angles.csv"), L.table("visited_states.csv")]
+    for p in ("biaxial", "footing"):
+        items += [L.table(f"{p}/surrogate_{p}.csv"), L.figure(f"{p}/surrogate_response_{p}.png"),
+                  L.figure(f"{p}/error_map_{p}.png")]
+    return items, [L.vtk("biaxial", "biaxial"), L.vtk("footing", "footing")]
 
 
 def snakemake(*args, cwd=ROOT):
@@ -56,13 +66,88 @@ def plain(html_text):
     return re.sub(r"\s+", " ", re.sub(r"<[^>]+>", "", html_text))
 
 
+def report_item(results, name):
+    """The text of the file ``name`` embedded in a report (``results``: the report's own index)."""
+    [entry] = [entry for entry in results.values() if entry["name"] == name]
+    return base64.b64decode(entry["data_uri"].split(",", 1)[1]).decode()
+
+
+def page_text(page):
+    """The text of an HTML page's body, as a reader sees it."""
+    return html_module.unescape(plain(page.split("<body>", 1)[1]))
+
+
+def check_figures(plan, again: Path) -> None:
+    """Each figure the workflow drew shows the data of the files it was drawn from: its function,
+    called again here on those files (the rule's arguments, from the plan), draws the same pixels,
+    and what it drew is what figure_checks computes from the run files, the dataset's split and
+    the tables."""
+    from granular_multiscale.analysis import calibration, products
+
+    L, settings, path = plan.layout, plan.config["analysis"], plan.validation_path
+    files = plan.comparison_runs(path)
+    runs = {label: read_run(f) for label, f in files.items()}
+    ref, ml = plan.reference_label, plan.surrogate_label
+    labels = {"path_label": path_label(path), "reference_label": ref, "surrogate_label": ml}
+    split = (L.dataset("train"), L.dataset("heldout"))
+    with xr.open_dataset(split[0], engine="h5netcdf") as train, xr.open_dataset(split[1], engine="h5netcdf") as heldout:
+        train_gp = np.asarray(train.attrs["train_gp"]).ravel()
+        heldout_gp = np.asarray(heldout.attrs["heldout_gp"]).ravel()
+
+    def same(name, kind, rows=1):
+        """The workflow's PNG has the size the settings ask for and the pixels of the one drawn again."""
+        check.check_png(L.figure(name), products._size(settings, kind, rows=rows), products._dpi(settings))
+        with Image.open(L.figure(name)) as theirs, Image.open(again / name) as ours:
+            assert np.array_equal(np.asarray(theirs.convert("RGB")), np.asarray(ours.convert("RGB"))), name
+
+    drawn = products.make_error_map(files[ref], files[ml], *split, again / "error_map.png", settings, **labels)
+    same("error_map.png", "error_map")
+    check.check_error_map(drawn, runs[ref], runs[ml], train_gp, heldout_gp)
+
+    names = plan.stress_strain_names()
+    chosen, drawn = products.make_stress_strain(files, *split, {n: again / f"stress_strain_{n}.png" for n in names},
+                                                settings, path_label=labels["path_label"])
+    for name in names:
+        same(f"stress_strain_{name}.png", "line")
+        check.check_stress_strain(drawn[name], runs, chosen[name])
+
+    drawn = products.make_global_response(files, again / "top_force_volumetric_strain.png", settings,
+                                          path_label=labels["path_label"])
+    same("top_force_volumetric_strain.png", "line")
+    check.check_global_response(drawn, runs)
+
+    n_steps = runs[ref].sizes["step"]
+    steps = [s if s >= 0 else n_steps + s for s in settings["field_steps"]]
+    for quantity in FIELD_QUANTITIES:
+        drawn = products.make_field_figure(files[ref], files[ml], quantity, again / f"fields_{quantity}.png", settings,
+                                           **labels)
+        same(f"fields_{quantity}.png", "field_row", rows=len(steps))
+        check.check_fields(drawn, runs[ref], runs[ml], quantity, steps)
+
+    curves = plan.training_curves()
+    drawn = products.make_training_curves(curves, again / "training_curves.png", settings)
+    same("training_curves.png", "line")
+    check.check_training_curves(drawn, curves)
+
+    speedup, accuracy = L.table("speedup.csv"), L.table("accuracy.csv")
+    drawn = products.make_speed_vs_error(speedup, accuracy, again / "speed_vs_error.png", settings,
+                                         curve=plan.speed_curve(path))
+    same("speed_vs_error.png", "speed")
+    check.check_speed_vs_error(drawn, speedup, accuracy)
+
+    _, drawn = calibration.make_calibration(files[ml], files[ref], again / "calibration.png", again / "calibration.csv",
+                                            again / "calibration.html", settings, **labels)
+    same("calibration.png", "line")
+    check.check_calibration(drawn, runs[ml], runs[ref])
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("reference", ["elastoplastic", pytest.param("dem", marks=pytest.mark.needs_yade)])
 def test_tiny_pipeline_builds_the_report(tmp_path, reference):
-    """The elastoplastic chain builds its report in the same call (--report-after-run: the front
-    page must state the numbers this run has just written), the DEM chain with a second call
-    (--report). Either way a dry run afterwards has nothing to do: the headline in the config
-    makes no rule rerun."""
+    """The elastoplastic chain builds its report in the same call (--report-after-run: the headline
+    page is the one this run has just written), the DEM chain with a second call (--report), with
+    the tolerance study's page of the reference's own error. Either way a dry run afterwards has
+    nothing to do."""
     from granular_multiscale.analysis import tables
 
     out = tmp_path / "tiny"
@@ -70,17 +155,20 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     settings = {"output_dir": str(out), "reference_material": reference}  # training epochs as config/tiny.yaml sets them
     if reference == "dem":  # (the problems with YADE RVEs: tests/test_problems.py)
         settings["problems"] = []
-    if reference == "dem":  # the reference's own error on the front page: a two-variant tolerance study
+    if reference == "dem":  # the reference's own error in "0 Headline": a two-variant tolerance study
         settings["tolerance_study"] = {"converged": "tight", "baseline": "default", "variants": {
             "default": {"tolerance": 2.0e-3, "max_iterations": 30}, "tight": {"tolerance": 5.0e-4}}}
     override.write_text(yaml.safe_dump(settings))
     config_args = ["--configfile", "config/tiny.yaml", str(override)]
+    plan = Plan(load_config(ROOT / "config/tiny.yaml", settings))
+    L = plan.layout
     # what the report needs (rule all adds the FEM–ML runs of the training path and the
     # surrogate stage's own metric tables, which its tests cover)
-    targets = [f"{out}/figures/{name}" for name in FIGURES] + [f"{out}/tables/{name}" for name in TABLES]
-    targets += [f"{out}/tables/headline.json", f"{out}/vtk/reference/path2", f"{out}/vtk/fem_ml/path2"]
+    targets = [L.figure(name) for name in FIGURES] + [L.table(name) for name in TABLES]
+    targets += [L.table("headline.json"), L.vtk("reference", "path2"), L.vtk("fem_ml", "path2")]
+    problem_items, problem_vtk = problem_products(L)
     if reference == "elastoplastic":  # the problems beyond the triaxial specimen, as `all` makes them
-        targets += [f"{out}/{name}" for name in PROBLEM_PRODUCTS]
+        targets += problem_items + problem_vtk
     report = out / "report.html"
     if reference == "elastoplastic":
         snakemake("-j2", *config_args, "--report", str(report), "--report-after-run", "--", *targets)
@@ -89,11 +177,9 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
         snakemake("--report", str(report), *config_args, "--", "all", "tolerance_study")
     again = snakemake("-n", "-j2", *config_args, "--", *targets)
     assert "Nothing to be done" in again.stdout + again.stderr, (again.stdout + again.stderr)[-3000:]
-    for name in FIGURES:  # a drawn figure, not an empty canvas
-        image = np.asarray(Image.open(out / "figures" / name).convert("L"), dtype=float)
-        assert min(image.shape) > 300 and image.std() > 10 and np.mean(image < 240) > 0.02, name
+    check_figures(plan, tmp_path / "again")
     for name in TABLES:  # every table has rows of finite numbers
-        path = out / "tables" / name
+        path = Path(L.table(name))
         if path.suffix == ".html":
             assert path.read_text().count("<td") >= 2, name
             continue
@@ -104,14 +190,13 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
         assert len(table) > 0 and numbers.notna().sum().sum() > 0.5 * numbers.size, name
         assert not np.isinf(numbers.to_numpy(dtype=float)).any(), name
 
-    reference_dir = "fem_dem" if reference == "dem" else "fem_elastoplastic"
-    reference_run = read_run(out / reference_dir / "path2.h5")
-    fem_ml = read_run(out / "fem_ml" / "path2.h5")
+    reference_run = read_run(plan.reference_run("path2"))
+    fem_ml = read_run(L.fem_ml("path2"))
     n_ref, n_ml = reference_run.sizes["step"], fem_ml.sizes["step"]
     assert n_ref == 58  # step 0 and the 57 load steps of path2
     # a FEM–ML run that stops fails its rule (surrogate.keep_partial_runs is false): this one went to the end
     assert fem_ml.attrs["completed"] == 1 and n_ml == n_ref and "stopped_at_step" not in fem_ml.attrs
-    vtk = out / "vtk" / "fem_ml" / "path2"
+    vtk = Path(L.vtk("fem_ml", "path2"))
     assert (vtk / "path2.pvd").is_file() and len(list(vtk.glob("path2_*.vtu"))) == n_ml
 
     html = report.read_text()
@@ -120,19 +205,26 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     # the PNGs are embedded, not linked: each figure's bytes are in the page
     embedded = set(re.findall(r"data:image/png;[^,\"]*base64,([A-Za-z0-9+/=]+)", html))
     for name in FIGURES:
-        assert base64.b64encode((out / "figures" / name).read_bytes()).decode() in embedded, name
+        assert base64.b64encode(Path(L.figure(name)).read_bytes()).decode() in embedded, name
     # every result has its caption, every category shows up
     results = json.loads(re.search(r"var results = (\{.*?\});\n", html).group(1))
     for path, entry in results.items():
         assert "What to look for" in entry["caption"] or Path(path).suffix == ".csv", path
-    for category in ("1 Gauss points", "2 Specimen", "3 Speed and accuracy", "4 Training", "6 Uncertainty"):
+    for category in ("0 Headline", "1 Gauss points", "2 Specimen", "3 Speed and accuracy", "4 Training",
+                     "6 Uncertainty"):
         assert category in html
-    # the front page states scale, reference material, machine and the headline numbers
-    headline = json.loads((out / "tables" / "headline.json").read_text())
+    # the front page states scale and reference material (from the config) and points to the
+    # headline page, which states what ran, the reference's tolerance, the machine and the numbers
+    headline = json.loads(Path(L.table("headline.json")).read_text())
     display = headline["display"]
     raw = json.loads(re.search(r"var workflow_desc = (\".*?\");\n", html).group(1))
     assert "System Message" not in raw  # reStructuredText rendered without errors
     description = plain(raw)
+    assert "category 0 Headline, a page the run writes with tables/headline.json" in description
+    assert "Speedup" not in description and "Measured on" not in description  # no number of the run
+    page = report_item(results, "headline.html")
+    assert page == Path(L.table("headline.html")).read_text()
+    page = page_text(page)
     if reference == "elastoplastic":
         assert "Analytic elastoplastic model" in description and "not FEM–DEM" in description
         # the problems: named on the front page, each product in its category with its caption
@@ -140,64 +232,73 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
         assert "strip footing: width 100 mm, half of a domain" in description
         assert "7 Problems beyond the triaxial specimen" in html and "8 The surrogate on the problems" in html
         for p in ("biaxial", "footing"):  # FEM–ML on the problems, against the reference, to the end
-            surrogate = pd.read_csv(out / "tables" / p / f"surrogate_{p}.csv")
+            surrogate = pd.read_csv(L.table(f"{p}/surrogate_{p}.csv"))
             assert len(surrogate) == 2 and surrogate["force: largest error (% of peak)"].iloc[0] == 0
             assert np.isfinite(surrogate["force: largest error (% of peak)"].iloc[1])
-        for name in PROBLEM_PRODUCTS:
-            if not name.startswith("vtk/"):
-                assert f'"name": "{Path(name).name}"' in html, f"{name} missing from the report"
-        bands = pd.read_csv(out / "tables" / "biaxial_bands.csv")
+        for name in problem_items:
+            assert f'"name": "{Path(name).name}"' in html, f"{name} missing from the report"
+        bands = pd.read_csv(L.table("biaxial_bands.csv"))
         assert list(bands["mesh"]) == ["2x4"] and bands["Gauss points"].iloc[0] == 32
-        assert (out / "vtk" / "biaxial" / "biaxial" / "biaxial_biaxial.pvd").is_file()
-        assert len(list((out / "vtk" / "biaxial" / "biaxial").glob("*.vtu"))) == 15  # step 0 and 14 load steps
+        assert (Path(L.vtk("biaxial", "biaxial")) / "biaxial_biaxial.pvd").is_file()
+        assert len(list(Path(L.vtk("biaxial", "biaxial")).glob("*.vtu"))) == 15  # step 0 and 14 load steps
     else:
         assert "YADE RVEs of 150 spheres" in description and "Analytic" not in description
-        assert (out / "fem_dem" / "path1.h5").is_file() and (out / "rve" / "summary.json").is_file()
+        assert Path(plan.reference_run("path1")).is_file() and Path(L.packing_summary()).is_file()
     assert headline["surrogate_completed"] is True
     assert headline["surrogate_load_steps"] == n_ml - 1 and headline["reference_load_steps"] == n_ref - 1
-    assert "stopped after load step" not in description
+    assert "stopped after load step" not in page
 
     # what ran: the full 1×1×2 mesh, one material point per Gauss point
-    speed = pd.read_csv(out / "tables" / "speedup.csv")
+    speed = pd.read_csv(L.table("speedup.csv"))
     this = speed[speed["source"] == "this run"].set_index("method")
     assert (this["rves"] == 16).all()
     assert headline["gauss_points"] == headline["gauss_points_modelled"] == headline["material_points_evaluated"] == 16
     assert headline["symmetry"] == "none" and headline["uniform_field"] is False
-    assert "the full specimen, 16 Gauss points (no symmetry reduction)" in description
+    assert "the full specimen, 16 Gauss points (no symmetry reduction)" in page
     points = "RVEs" if reference == "dem" else "material points"
-    assert f"the reference evaluated 16 {points}, one per Gauss point" in description
-    assert f"Measured on {headline['machine']['cores']} cores" in description
+    assert f"the reference evaluated 16 {points}, one per Gauss point" in page
+    assert f"Measured on {headline['machine']['cores']} cores of {headline['machine']['cpu']}" in page
     assert (f"Speedup {display['speedup']} for one answer: {headline['surrogate']} took {display['surrogate_wall_time']}, "
-            f"{headline['reference']} {display['reference_wall_time']}") in description
-    assert f"Held-out stress MAE {display['stress_mae_heldout_kpa']}" in description
-    assert "e+0" not in description and "e-0" not in description  # no exponent notation
+            f"{headline['reference']} {display['reference_wall_time']}") in page
+    assert f"Top-force error {display['top_force_max_rel_pct']} of the peak" in page
+    assert f"Held-out stress MAE {display['stress_mae_heldout_kpa']}" in page
+    assert (f"Without history variables ({headline['ablation']}): top-force error "
+            f"{display['ablation_top_force_max_rel_pct']}, held-out stress MAE "
+            f"{display['ablation_stress_mae_heldout_kpa']}") in page
+    assert "e+0" not in page and "e-0" not in page and "n/a" not in page  # no exponent notation, no gap
 
     # the reference's tolerance, the residual it reached and (DEM: from the study) its own error
     newton = headline["reference_newton"]
     assert newton["tolerance"] == reference_run.attrs["newton_tolerance"]
     assert newton["residual_relative_max"] == pytest.approx(reference_run.residual_relative.values.max())
-    assert f"The reference was solved to a relative residual of {display['reference_tolerance']} " in description
+    assert f"The reference was solved to a relative residual of {display['reference_tolerance']} " in page
     assert display["reference_tolerance"] == ("0.002" if reference == "dem" else "0.00000001")
-    if reference == "dem":
+    if reference == "dem":  # in the page tolerance_study wrote, beside the headline page
         assert (newton["tolerance"], newton["predictor"], newton["acceleration"]) == (2e-3, "extrapolate", "anderson")
-        study = pd.read_csv(out / "tables" / "tolerance_study.csv").set_index("variant")
-        assert f"top force within {study.loc['default', 'top_force_max_pct']:.2f} % of the peak" in description
-        assert "variant default against a run to 0.0005" in description
+        assert "Its own error is measured by the tolerance study" in page
+        assert "The reference's own error, from the tolerance study: the page Reference convergence there" in description
+        study = pd.read_csv(L.table("tolerance_study.csv")).set_index("variant")
+        own = page_text(report_item(results, "reference_convergence.html"))
+        assert "solved to a relative residual of 0.002 (extrapolate predictor, Anderson mixing;" in own
+        assert f"top force within {study.loc['default', 'top_force_max_pct']:.2f} % of the peak" in own
+        assert f"volumetric strain within {study.loc['default', 'volumetric_strain_max_pct']:.2f} %" in own
+        assert "variant default against a run to 0.0005" in own
         assert "tolerance_study.png" in html and "5 Reference" in html
     else:
-        assert "Its own error is not measured for this configuration" in description
+        assert "Its own error is not measured by this workflow" in page
+        assert not any(entry["name"] == "reference_convergence.html" for entry in results.values())
 
     # the full cost of an answer: every item as its file says, their total, the break-even
-    cost = pd.read_csv(out / "tables" / "surrogate_cost.csv")
+    cost = pd.read_csv(L.table("surrogate_cost.csv"))
     items = cost[cost["kind"] == "surrogate cost"].set_index("item")["wall_time_s"]
-    training_run = read_run(out / reference_dir / "path1.h5")
+    training_run = read_run(plan.reference_run("path1"))
     expected = {"reference run of Path1": tables.run_wall_time(training_run)}
     if reference == "dem":
-        expected["RVE preparation"] = tables.rve_preparation_seconds(out / "rve" / "summary.json")
+        expected["RVE preparation"] = tables.rve_preparation_seconds(L.packing_summary())
     # the RVE paths are a training source (config/tiny.yaml): their rule's wall time counts too
-    expected["RVE paths 'designed'"] = tables.benchmark_seconds(out / "benchmarks" / "rve_paths" / "designed.tsv")
+    expected["RVE paths 'designed'"] = tables.benchmark_seconds(L.benchmark("rve_paths/designed"))
     for network in ("dataset", "train_sigma", "train_tangent"):
-        expected[network] = tables.benchmark_seconds(out / "benchmarks" / "surrogate" / f"{network}.tsv")
+        expected[network] = tables.benchmark_seconds(L.benchmark(f"surrogate/{network}"))
     assert len(items) == len(expected) == (6 if reference == "dem" else 5)
     for key, seconds in expected.items():
         matching = [label for label in items.index if label.startswith(key) or f"rule {key})" in label]
@@ -210,16 +311,16 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     assert t_ref == pytest.approx(headline["reference_wall_time_s"])
     assert t_ml == pytest.approx(headline["surrogate_wall_time_s"] / (n_ml - 1) * (n_ref - 1))
     assert headline["break_even_runs"] == tables.break_even_runs(total, t_ref, t_ml)
-    assert f"Making the surrogate took {display['surrogate_cost']}" in description
+    assert f"Making the surrogate took {display['surrogate_cost']}" in page
     if headline["break_even_runs"] is None:
-        assert "It never pays back here" in description
+        assert "It never pays back here" in page
     else:
         n = headline["break_even_runs"]
-        assert f"It pays back from {display['break_even_runs']} FEM–ML run{'' if n == 1 else 's'} of path2 on" in description
+        assert f"It pays back from {display['break_even_runs']} FEM–ML run{'' if n == 1 else 's'} of path2 on" in page
         assert n * t_ml + total <= n * t_ref and (n == 1 or (n - 1) * t_ml + total > (n - 1) * t_ref)
 
 
-# -- the front page, whatever builds the report (fast: no job runs) ---------------------
+# -- the front page and the headline page (fast: no job runs) -----------------------------
 
 API_REPORT = """
 import sys
@@ -227,13 +328,14 @@ from pathlib import Path
 from snakemake.api import SnakemakeApi
 from snakemake.report.html_reporter import ReportSettings
 from snakemake.settings.types import ConfigSettings, DAGSettings, OutputSettings, ResourceSettings
+from granular_multiscale.plan import Layout
 root, out, report = map(Path, sys.argv[1:4])
 with SnakemakeApi(OutputSettings()) as api:
     workflow = api.workflow(resource_settings=ResourceSettings(), snakefile=root / "Snakefile", workdir=root,
                             config_settings=ConfigSettings(configfiles=[root / "config/tiny.yaml"],
                                                            config={"output_dir": str(out), "reference_material": sys.argv[4]}))
     # a target with no report() output upstream: the report holds the front page only
-    workflow.dag(DAGSettings(targets={str(out / "rve/summary.json")})).create_report(
+    workflow.dag(DAGSettings(targets={Layout(out).packing_summary()})).create_report(
         reporter="html", report_settings=ReportSettings(path=report))
 """
 
@@ -263,23 +365,31 @@ def headline_file(out, **changes):
     return headline
 
 
-def front_page_through_the_api(tmp_path, reference="dem"):
-    """The report built with the Snakemake API (no '--report' on any command line)."""
+def test_the_front_page_states_no_number_of_a_run_whatever_builds_the_report(tmp_path):
+    """Pass criterion: the front page is rendered from the config alone. Built through the API
+    (no '--report' on any command line) from an output directory that holds a headline.json, it
+    states none of its numbers, and, with no headline page among the report's items, says where
+    the numbers come from; the reStructuredText renders without errors."""
     out, report = tmp_path / "out", tmp_path / "report.html"
-    result = subprocess.run([sys.executable, "-c", API_REPORT, str(ROOT), str(out), str(report), reference],
+    headline_file(out)
+    result = subprocess.run([sys.executable, "-c", API_REPORT, str(ROOT), str(out), str(report), "dem"],
                             cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-4000:]
-    html = report.read_text()
-    text = json.loads(re.search(r"var workflow_desc = (\".*?\");\n", html).group(1))
-    return re.sub(r"\s+", " ", re.sub(r"<[^>]+>", "", text))
+    raw = json.loads(re.search(r"var workflow_desc = (\".*?\");\n", report.read_text()).group(1))
+    assert "System Message" not in raw
+    page = plain(raw)
+    assert "YADE RVEs of 150 spheres" in page and "Reductions configured: symmetry none, uniform field false." in page
+    assert "Not in this report: its targets do not include tables/headline.json" in page
+    for number in ("Test CPU 9000", "2,280", "563 s", "2.41 %", "Measured on"):
+        assert number not in page, number
 
 
-def test_the_front_page_states_the_headline_when_the_api_builds_the_report(tmp_path):
-    """Pass criterion: tables/headline.json reaches the front page when the report is built
-    through the API (the old check looked for '--report' on the command line and missed it):
-    numbers as people read them, what ran, the cost of the surrogate and its break-even."""
-    headline_file(tmp_path / "out")
-    page = front_page_through_the_api(tmp_path)
+def test_the_headline_page_states_the_headline(tmp_path):
+    """The headline page: numbers as people read them, what ran, the cost of the surrogate and
+    its break-even."""
+    from granular_multiscale.analysis.products import headline_page
+
+    page = page_text(headline_page(headline_file(tmp_path)))
     assert "Measured on 2 cores of Test CPU 9000" in page
     assert "Speedup 2,280× for one answer: FEM–ML (nn tangent) took 0.247 s, FEM–DEM (150 spheres) 563 s (9.4 min)" in page
     assert "the full specimen, 16 Gauss points (no symmetry reduction)" in page
@@ -292,15 +402,18 @@ def test_the_front_page_states_the_headline_when_the_api_builds_the_report(tmp_p
     assert "e+0" not in page  # no exponent notation anywhere
 
 
-def test_the_front_page_states_the_reductions_and_a_surrogate_that_never_pays_back(tmp_path):
+def test_the_headline_page_states_the_reductions_and_a_surrogate_that_never_pays_back(tmp_path):
     """Quarter symmetry with a uniform field on the elastoplastic reference: 16 of the 64 Gauss
     points modelled, one material point evaluated; FEM–ML slower than the analytic model."""
-    headline_file(tmp_path / "out", reference_material="elastoplastic", reference="FEM, elastoplastic model (reference)",
-                  elements=[2, 2, 2], gauss_points=64, symmetry="quarter", modelled_fraction=0.25, uniform_field=True,
-                  material_points_evaluated=1, reference_wall_time_s=0.31, surrogate_wall_time_s=1.2, speedup=0.2583,
-                  break_even_runs=None, surrogate_cost_items=[{"item": "dataset", "wall_time_s": 3.0}],
-                  surrogate_cost_s=3.0)
-    page = front_page_through_the_api(tmp_path, reference="elastoplastic")
+    from granular_multiscale.analysis.products import headline_page
+
+    headline = headline_file(tmp_path, reference_material="elastoplastic",
+                             reference="FEM, elastoplastic model (reference)", elements=[2, 2, 2], gauss_points=64,
+                             symmetry="quarter", modelled_fraction=0.25, uniform_field=True,
+                             material_points_evaluated=1, reference_wall_time_s=0.31, surrogate_wall_time_s=1.2,
+                             speedup=0.2583, break_even_runs=None,
+                             surrogate_cost_items=[{"item": "dataset", "wall_time_s": 3.0}], surrogate_cost_s=3.0)
+    page = page_text(headline_page(headline))
     assert "quarter symmetry (specimen.symmetry: quarter), a mesh of 1 × 1 × 2 elements with 16 of the specimen's 64 Gauss points" in page
     assert "uniform field (specimen.uniform_field: true): one material point stands for all 16 Gauss points" in page
     assert "the reference evaluated 1 material point;" in page
@@ -309,10 +422,10 @@ def test_the_front_page_states_the_reductions_and_a_surrogate_that_never_pays_ba
     assert "The reference is the analytic model, not FEM–DEM" in page
 
 
-def test_jobs_validate_a_config_that_carries_the_headline():
-    """The workflow puts the headline under config["headline"] for the front page; a rule script
-    that validates its config (every FEM rule does) must neither fail on it nor keep it."""
-    from granular_multiscale.config import validate_config
+def test_a_config_with_a_headline_key_is_refused_naming_it():
+    """The workflow keeps no number of a run in its config: 'headline' is no setting, and a config
+    that carries one is refused like any unknown key, naming it."""
+    from granular_multiscale.config import ConfigError, validate_config
 
-    config = validate_config({"output_dir": "results/x", "headline": {"speedup": 2660.3}})
-    assert "headline" not in config and config["output_dir"] == "results/x"
+    with pytest.raises(ConfigError, match=r"'headline' was unexpected\) \(unknown key"):
+        validate_config({"output_dir": "results/x", "headline": {"speedup": 2660.3}})

@@ -26,6 +26,7 @@ from granular_multiscale.dem.strain_paths import (
 )
 from granular_multiscale.drivers.rve_paths import contact_lost, run_rve_paths
 from granular_multiscale.history import history_from_sequence
+from granular_multiscale.plan import Layout
 
 P0 = 1.0e5
 #: measured DEM cost of the default-scale FEM–DEM Path1 run (README, "Scales")
@@ -382,14 +383,15 @@ def test_rule_writes_the_set_with_log_and_benchmark(tmp_path):
     config_file.write_text(yaml.safe_dump(validate_config(config)))
     snakemake = str(Path(sys.executable).with_name("snakemake"))
     command = [snakemake, "-j2", "--configfile", str(config_file), "--"]
-    missing = subprocess.run([*command[:1], "-n", *command[1:], f"{out}/rve_paths/other.h5"], cwd=ROOT,
+    L = Layout(out)
+    missing = subprocess.run([*command[:1], "-n", *command[1:], L.rve_paths("other")], cwd=ROOT,
                              capture_output=True, text=True, timeout=300)
     assert missing.returncode != 0 and "MissingRuleException" in missing.stdout + missing.stderr
-    result = subprocess.run([*command, f"{out}/rve_paths/s.h5"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    result = subprocess.run([*command, L.rve_paths("s")], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-4000:]
-    ds = read_run(out / "rve_paths" / "s.h5", required=("strain", "stress", "tangent"))
+    ds = read_run(L.rve_paths("s"), required=("strain", "stress", "tangent"))
     assert ds.sizes["gp"] == 3 and ds.sizes["step"] == 5 and np.isfinite(ds.stress.values).all()
-    log = (out / "logs" / "rve_paths" / "s.log").read_text()
+    log = Path(L.log("rve_paths/s")).read_text()
     assert log.count("particle-steps") == 5 and "rve_paths s: done" in log and "12 RVE evaluations" in log
-    assert (out / "benchmarks" / "rve_paths" / "s.tsv").exists()
-    assert not (out / "checkpoints" / "rve_paths" / "s.ckpt").exists()
+    assert Path(L.benchmark("rve_paths/s")).exists()
+    assert not Path(L.checkpoint("rve_paths/s")).exists()

@@ -3,7 +3,7 @@ for N steps, then one step at rest) against a triaxial test driven directly in Y
 
 Small scale: two 100-sphere packings, 30 steps to 3 % axial strain (the peak of these RVEs),
 Newton tolerance 1e-3, about a minute. The 400-sphere study with 5 packings to 4.5 % is
-``bench/bench_rve_procedure.py``; docs/rve_procedure.md has its numbers.
+``bench/bench_rve_procedure.py``; docs/rve_procedure.md has its conclusions, docs/history.md its numbers.
 """
 
 from __future__ import annotations

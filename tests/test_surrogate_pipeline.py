@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 
 from granular_multiscale.data import read_run, run_config, run_tangent
+from granular_multiscale.plan import Layout
 from granular_multiscale.surrogate.dataset import read_dataset, split_of
 from granular_multiscale.surrogate.models import SurrogateModel
 
@@ -40,7 +41,7 @@ def recount_out_of_range(run, model):
 @pytest.fixture(scope="module")
 def tiny_chain(tmp_path_factory):
     out = tmp_path_factory.mktemp("surrogate") / "tiny"
-    targets = [f"{out}/tables/fem_ml_curve_errors.csv"]
+    targets = [Layout(out).table("fem_ml_curve_errors.csv")]
     # NNσ and ND as ensembles of two: the ensemble path through the rules, model files and figures
     cmd = [sys.executable, "-m", "snakemake", "-j2", "--configfile", "config/tiny.yaml",
            "--config", "reference_material=elastoplastic", f"output_dir={out}", "surrogate={ensemble_size: 2}",
@@ -52,15 +53,15 @@ def tiny_chain(tmp_path_factory):
 
 @pytest.mark.slow
 def test_dataset_and_models(tiny_chain):
-    out = tiny_chain
-    train, heldout = read_dataset(out / "dataset/train.h5"), read_dataset(out / "dataset/heldout.h5")
+    L = Layout(tiny_chain)
+    train, heldout = read_dataset(L.dataset("train")), read_dataset(L.dataset("heldout"))
     # training sources (config/tiny.yaml): path1's reference run and the 8 RVE paths of the tiny set,
     # held out by trajectory class. On the 1×1×2 mesh with the elastoplastic model the 16 points form
     # two classes of 8 mirror images (same history to round-off): 75 % of 16 can only be one whole
     # class. The 8 RVE paths are 8 classes: 6 train, 2 are held out.
     def count(ds, source):
         return int((ds.source.values == source).sum())
-    run, paths = str(out / "fem_elastoplastic/path1.h5"), str(out / "rve_paths/designed.h5")
+    run, paths = L.run("fem_elastoplastic", "path1"), L.rve_paths("designed")
     assert [count(train, run), count(heldout, run), count(train, paths), count(heldout, paths)] == [8, 8, 6, 2]
     assert train.attrs["trajectory_classes"] == 2 + 8
     assert not set(train.trajectory_class.values) & set(heldout.trajectory_class.values)
@@ -68,36 +69,36 @@ def test_dataset_and_models(tiny_chain):
     assert set(split_of(train)["train"]) == set(train.source_gp.values[train.source.values == run])
     assert set(split_of(train)["heldout"]) == set(heldout.source_gp.values[heldout.source.values == run])
     assert not set(train.gp.values) & set(heldout.gp.values)
-    sigma = SurrogateModel.load(out / "models/nn_sigma.pt")
+    sigma = SurrogateModel.load(L.model("sigma"))
     assert sigma.kind == "sigma" and sigma.history == ("phi1", "phi2")  # config/tiny.yaml
     assert sigma.config["surrogate"]["history_variables"] == ["phi1", "phi2"]
-    assert SurrogateModel.load(out / "models/nn_tangent_nohist.pt").feature_names[-1] == "strain_12"
+    assert SurrogateModel.load(L.model("tangent_nohist")).feature_names[-1] == "strain_12"
     assert sigma.ensemble_size == 2 and len(set(sigma.training["member_seeds"])) == 2
-    losses = pd.read_csv(out / "training/sigma.csv")
+    losses = pd.read_csv(L.training("sigma.csv"))
     for _, member in losses.groupby("member"):
         assert len(member) == sigma.config["surrogate"]["epochs"]
         assert member.train_loss.iloc[-1] < 0.5 * member.train_loss.iloc[0]
         # the held-out class is the other distinct history of this mesh (the only one): a genuine
         # extrapolation, no copy of a training point. Measured: held-out loss 1.30 -> 1.13 (scaled MAE)
         assert member.heldout_loss.iloc[-1] < member.heldout_loss.iloc[0]
-    mae = pd.read_csv(out / "tables/surrogate_training_mae.csv")
+    mae = pd.read_csv(L.table("surrogate_training_mae.csv"))
     assert set(mae.network) == {"sigma", "tangent", "sigma_nohist", "tangent_nohist"}
-    assert (out / "training/sigma_loss.png").stat().st_size > 5000
+    assert Path(L.training("sigma_loss.png")).stat().st_size > 5000
     for rule in ("dataset", "train_sigma", "metrics"):
-        assert (out / f"benchmarks/surrogate/{rule}.tsv").is_file()
+        assert Path(L.benchmark(f"surrogate/{rule}")).is_file()
 
 
 @pytest.mark.slow
 def test_fem_ml_runs_and_metrics(tiny_chain):
-    out = tiny_chain
-    reference = read_run(out / "fem_elastoplastic/path2.h5")
-    ml = read_run(out / "fem_ml/path2.h5")
-    nohist = read_run(out / "fem_ml_nohist/path2.h5")
+    L = Layout(tiny_chain)
+    reference = read_run(L.run("fem_elastoplastic", "path2"))
+    ml = read_run(L.fem_ml("path2"))
+    nohist = read_run(L.run("fem_ml_nohist", "path2"))
     assert ml.attrs["method"].startswith("fem_ml_") and "nohist" not in ml.attrs["method"]
     assert nohist.attrs["method"].startswith("fem_ml_nohist_")
     assert ml.sizes["step"] == reference.sizes["step"] and np.isfinite(ml.stress.values).all()
     # the counts in the files are the points whose inputs leave the training range saved with the model
-    train = read_dataset(out / "dataset/train.h5")
+    train = read_dataset(L.dataset("train"))
     for run in (ml, nohist):
         assert int(run.cutbacks.sum()) == 0  # else the material's history saw sub-steps the file does not hold
         model = SurrogateModel.load(run.attrs["surrogate_sigma_model"])
@@ -120,11 +121,11 @@ def test_fem_ml_runs_and_metrics(tiny_chain):
     assert ml.attrs["method"] == "fem_ml_autodiff" and ml.attrs["tangent_symmetric"] == 0 and "tangent_full" in ml
     full = run_tangent(ml)
     assert np.abs(full - np.swapaxes(full, -1, -2)).max() > 1e-3 * np.abs(full).max()
-    for symmetric in (reference, read_run(out / "fem_ml_nn/path2.h5")):
+    for symmetric in (reference, read_run(L.run("fem_ml_nn", "path2"))):
         assert symmetric.attrs["tangent_symmetric"] == 1 and "tangent_full" not in symmetric
     # the surrogate starts where the reference starts (anchored initial state): same consolidated force
     assert ml.top_force.values[0] == pytest.approx(reference.top_force.values[0], rel=1e-6)
-    curves = pd.read_csv(out / "tables/fem_ml_curve_errors.csv")
+    curves = pd.read_csv(L.table("fem_ml_curve_errors.csv"))
     assert set(curves.run) == {"fem_ml", "fem_ml_nohist"} and set(curves.path) == {"path1", "path2"}
     force = curves[(curves.quantity == "top_force") & (curves.phase == "all")].set_index(["run", "path"])
     # the numbers in the table are those of the files
@@ -139,8 +140,8 @@ def test_fem_ml_runs_and_metrics(tiny_chain):
     for run, bound in (("fem_ml", 8.0), ("fem_ml_nohist", 4.5)):
         for path in ("path1", "path2"):
             assert force.loc[(run, path), "max_error_percent_of_peak"] < bound, (run, path)
-    newton = pd.read_csv(out / "tables/fem_ml_newton_iterations.csv")
+    newton = pd.read_csv(L.table("fem_ml_newton_iterations.csv"))
     assert {"iterations_nn", "iterations_autodiff", "iterations_reference"} <= set(newton.columns)
     assert len(newton) == reference.sizes["step"]
-    by_gp = pd.read_csv(out / "tables/fem_ml_stress_error_by_gp.csv")
+    by_gp = pd.read_csv(L.table("fem_ml_stress_error_by_gp.csv"))
     assert set(by_gp.split) == {"train", "heldout"} and len(by_gp) == 2 * 2 * 16

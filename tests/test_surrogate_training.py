@@ -224,11 +224,17 @@ def test_bad_settings_are_named(data):
 
 
 def test_loss_figure(data, tmp_path):
+    """The figure's two curves are the training and held-out loss per logged epoch that train returned."""
     _, losses, _ = train(*data, "sigma", FAST, seed=0)
-    plot_losses({"NNσ": losses}, tmp_path / "loss.png")
-    image = np.asarray(Image.open(tmp_path / "loss.png").convert("L"), dtype=float)
-    assert image.shape == (480, 720)  # one 6 x 4 inch panel at 120 dpi
-    assert image.std() > 10 and np.mean(image < 240) > 0.02  # drawn, not an empty canvas
+    drawn = plot_losses({"NNσ": losses}, tmp_path / "loss.png")
+    assert list(drawn) == ["NNσ"] and list(drawn["NNσ"]) == ["training", "held out"]
+    for line, column in (("training", "train_loss"), ("held out", "heldout_loss")):
+        epochs, loss = drawn["NNσ"][line]
+        np.testing.assert_array_equal(epochs, losses["epoch"])
+        np.testing.assert_array_equal(loss, losses[column])
+    assert not np.array_equal(losses["train_loss"], losses["heldout_loss"])  # the two curves differ
+    with Image.open(tmp_path / "loss.png") as image:
+        assert image.size == (720, 480)  # one 6 x 4 inch panel at 120 dpi
 
 
 def test_roundoff_columns_are_constant_in_the_scaling():

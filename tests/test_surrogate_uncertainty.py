@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 import torch
 from conftest import KilledAfterCommits
+from PIL import Image
 
 from granular_multiscale.analysis import calibration
 from granular_multiscale.config import validate_config
@@ -227,8 +228,9 @@ def test_calibration_of_a_constructed_pair_error_twice_the_spread(runs, tmp_path
     out = {k: tmp_path / f"calibration.{k}" for k in ("png", "csv", "html")}
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no log-of-zero or empty-slice warnings
-        calibration.make_calibration(files["ml"], files["ref"], out["png"], out["csv"], out["html"], {},
-                                     path_label="Short", reference_label="constructed", surrogate_label="FEM–ML")
+        _, drawn = calibration.make_calibration(files["ml"], files["ref"], out["png"], out["csv"], out["html"], {},
+                                                path_label="Short", reference_label="constructed",
+                                                surrogate_label="FEM–ML")
     table = pd.read_csv(out["csv"])
     deciles, everything = table.iloc[:-1], table.iloc[-1]
     assert list(deciles.decile) == [str(d) for d in range(1, 11)] and everything.decile == "all"
@@ -242,7 +244,27 @@ def test_calibration_of_a_constructed_pair_error_twice_the_spread(runs, tmp_path
     assert (np.diff(deciles.median_spread_kpa) > 0).all()
     # 1 up to the order within pairs of mirror-image points, whose spreads agree to round-off
     assert everything.spearman_spread_error == pytest.approx(1.0, abs=1e-5)
-    assert out["png"].stat().st_size > 20_000
+    # the figure: every (step >= 1, point) pair at (spread, error = 2 spread), the deciles of the table,
+    # and per step the median and 90th percentile of both over the points
+    spread = tensor_norm(run.stress_spread.values[1:]) / 1e3  # [step, gp], kPa
+    x, y = drawn["error_vs_spread"]["pairs"]
+    np.testing.assert_allclose(x, spread.ravel(), rtol=5e-16)  # measured 3.6e-16: another order of the sum
+    np.testing.assert_allclose(y, 2.0 * x, rtol=1.2e-14)  # measured 7.8e-15: the round-off of σ
+    for label, column in (("median error per spread decile", "median_error_kpa"),
+                          ("90th percentile per decile", "p90_error_kpa")):
+        deciles_x, deciles_y = drawn["error_vs_spread"][label]
+        # the CSV's 10 digits: measured 1.5e-10 and 4.6e-10
+        np.testing.assert_allclose(deciles_x, deciles.median_spread_kpa, rtol=7e-10)
+        np.testing.assert_allclose(deciles_y, deciles[column], rtol=7e-10)
+    steps = run.step.values[1:]
+    for label, values in (("spread, median", np.median(spread, axis=1)),
+                          ("spread, 90th percentile", np.percentile(spread, 90, axis=1)),
+                          ("error, median", 2.0 * np.median(spread, axis=1)),
+                          ("error, 90th percentile", 2.0 * np.percentile(spread, 90, axis=1))):
+        np.testing.assert_array_equal(drawn["per_step"][label][0], steps)
+        np.testing.assert_allclose(drawn["per_step"][label][1], values, rtol=4e-15, err_msg=label)  # measured 2.7e-15
+    with Image.open(out["png"]) as image:
+        assert image.size == (1200, 504)  # 10 x 4.2 inches at 120 dpi
     html = out["html"].read_text()
     assert "ensemble of 2 members" in html and "Spearman" in html
 
@@ -276,16 +298,23 @@ def test_calibration_with_one_network_says_the_spread_is_empty(runs, tmp_path):
     out = {k: tmp_path / f"calibration.{k}" for k in ("png", "csv", "html")}
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        table = calibration.make_calibration(files["ml"], files["ref"], out["png"], out["csv"], out["html"],
-                                             {"dpi": 80}, path_label="Short", reference_label="elastoplastic",
-                                             surrogate_label="FEM–ML")
+        table, drawn = calibration.make_calibration(files["ml"], files["ref"], out["png"], out["csv"], out["html"],
+                                                    {"dpi": 80}, path_label="Short", reference_label="elastoplastic",
+                                                    surrogate_label="FEM–ML")
     assert list(table.decile) == ["all"] and table["count"].iloc[0] == 240
     assert np.isnan(table.spearman_spread_error.iloc[0]) and np.isnan(table.median_error_over_spread.iloc[0])
     error = tensor_norm(runs[1].stress.values[1:] - runs["reference"].stress.values[1:]) / 1e3
     assert table.median_error_kpa.iloc[0] == pytest.approx(np.median(error), rel=1e-12)
     assert table.median_error_kpa.iloc[0] > 0.1  # kPa: rough networks, a real error
     assert "ensemble of 1 member: the spread is 0 and carries no information" in out["html"].read_text()
-    assert out["png"].stat().st_size > 10_000
+    # the figure: no pairs (no spread), the error's median and 90th percentile over the points per step
+    assert drawn["error_vs_spread"] == {} and list(drawn["per_step"]) == ["error, median", "error, 90th percentile"]
+    for label, values in (("error, median", np.median(error, axis=1)),
+                          ("error, 90th percentile", np.percentile(error, 90, axis=1))):
+        np.testing.assert_array_equal(drawn["per_step"][label][0], runs[1].step.values[1:])
+        np.testing.assert_allclose(drawn["per_step"][label][1], values, rtol=3.3e-16, err_msg=label)  # measured 2.2e-16
+    with Image.open(out["png"]) as image:
+        assert image.size == (800, 336)  # 10 x 4.2 inches at 80 dpi
 
 
 def test_calibration_names_a_run_without_spread(runs):

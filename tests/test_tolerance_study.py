@@ -18,6 +18,7 @@ from granular_multiscale.data import read_run
 from granular_multiscale.fem.newton import NewtonSettings
 from granular_multiscale.fem.triaxial import TriaxialProblem
 from granular_multiscale.paths import LoadPath
+from granular_multiscale.plan import Layout
 
 ROOT = Path(__file__).resolve().parents[1]
 PATH = LoadPath("p", ((6, 0.006), (3, 0.003), (8, 0.02)))
@@ -87,18 +88,19 @@ def test_rule_at_the_tiny_scale(tmp_path):
     result = subprocess.run([*snakemake, "-j2", "--", "tolerance_study"], cwd=ROOT, capture_output=True, text=True,
                             timeout=1200)
     assert result.returncode == 0, result.stderr[-4000:]
-    table = pd.read_csv(out / "tables" / "tolerance_study.csv").set_index("variant")
+    L = Layout(out)
+    table = pd.read_csv(L.table("tolerance_study.csv")).set_index("variant")
     assert set(table.index) == {"plain", "loose", "tight"}
     for name, tolerance in (("plain", 2e-2), ("loose", 2e-2), ("tight", 1e-3)):
-        run = read_run(out / "tolerance_study" / name / "p.h5")
+        run = read_run(L.tolerance_run(name, "p"))
         assert run.attrs["newton_tolerance"] == tolerance and run.sizes["step"] == 11
         assert (run.residual_relative.values <= tolerance).all()
         assert table.loc[name, "particle_steps_per_step"] == pytest.approx(run.particle_steps.values[1:].mean())
-        assert (out / "logs" / "tolerance_study" / name / "p.log").is_file()
-        assert (out / "benchmarks" / "tolerance_study" / name / "p.tsv").is_file()
+        assert Path(L.log(f"tolerance_study/{name}/p")).is_file()
+        assert Path(L.benchmark(f"tolerance_study/{name}/p")).is_file()
     assert table.loc["tight", "top_force_max_pct"] == 0 and table.loc["loose", "top_force_max_pct"] > 0
-    assert (out / "figures" / "tolerance_study.png").stat().st_size > 10_000
-    html = (out / "tables" / "tolerance_study.html").read_text()
+    assert Path(L.figure("tolerance_study.png")).stat().st_size > 10_000
+    html = Path(L.table("tolerance_study.html")).read_text()
     assert "converged variant tight" in html
 
 

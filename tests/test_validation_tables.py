@@ -20,6 +20,7 @@ from granular_multiscale.config import validate_config
 from granular_multiscale.data import read_run, write_run
 from granular_multiscale.drivers.reference import run_fem_reference
 from granular_multiscale.paths import load_paths_from_config, number_cycles
+from granular_multiscale.plan import Layout
 
 ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = str(Path(sys.executable).with_name("snakemake"))
@@ -176,9 +177,9 @@ def test_validation_tables_is_part_of_all_at_the_tiny_scale(tmp_path):
     """Pass criterion: `all` schedules validation_tables with the reference, FEM–ML and no-history
     runs of the validation path path2, then of the training path path1."""
     out, inputs, outputs = dry_run(tmp_path, "config/tiny.yaml")
-    assert f"{out}/tables/validation_by_phase.csv, {out}/tables/validation_by_phase.html" in outputs
-    assert inputs == [f"{out}/{run}/{path}.h5" for path in ("path2", "path1")
-                      for run in ("fem_dem", "fem_ml", "fem_ml_nohist")]
+    L = Layout(out)
+    assert f"{L.table('validation_by_phase.csv')}, {L.table('validation_by_phase.html')}" in outputs
+    assert inputs == [L.run(run, path) for path in ("path2", "path1") for run in ("fem_dem", "fem_ml", "fem_ml_nohist")]
 
 
 def test_the_new_paths_are_validation_paths_of_all(tmp_path):
@@ -186,10 +187,11 @@ def test_the_new_paths_are_validation_paths_of_all(tmp_path):
     the FEM–DEM and both FEM–ML runs of path3 and path4, and the validation table compares them
     (validation paths path2, path3, path4, then the training path path1)."""
     out, inputs, outputs = dry_run(tmp_path, "config/config.yaml", "config/new_paths.yaml")
+    L = Layout(out)
     for path in ("path3", "path4"):
         for run in ("fem_dem", "fem_ml", "fem_ml_nohist"):
-            assert f"{out}/{run}/{path}.h5" in outputs
-    assert inputs == [f"{out}/{run}/{path}.h5" for path in ("path2", "path3", "path4", "path1")
+            assert L.run(run, path) in outputs
+    assert inputs == [L.run(run, path) for path in ("path2", "path3", "path4", "path1")
                       for run in ("fem_dem", "fem_ml", "fem_ml_nohist")]
 
 

@@ -4,6 +4,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from granular_multiscale.plan import Layout
+
 ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = str(Path(sys.executable).with_name("snakemake"))
 
@@ -18,11 +20,12 @@ def test_other_sphere_counts_add_their_own_packing_and_fem_dem_run(tmp_path):
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
     output = result.stdout + result.stderr
     assert result.returncode == 0, output[-3000:]
-    assert f"output: {out}/rve_n60/packing_0.yade.gz, {out}/rve_n60/summary.json" in output
-    assert f"output: {out}/fem_dem_n60/path2.h5" in output
-    assert f"{out}/fem_dem_n60/path1.h5" not in output
+    L = Layout(out)
+    assert f"output: {L.packings(1, 60)[0]}, {L.packing_summary(60)}" in output
+    assert f"output: {L.run('fem_dem_n60', 'path2')}" in output
+    assert L.run("fem_dem_n60", "path1") not in output
     speedup_inputs = [line for line in output.splitlines() if line.strip().startswith("input:") and
-                      f"{out}/fem_dem_n60/path2.h5" in line]
+                      L.run("fem_dem_n60", "path2") in line]
     assert len(speedup_inputs) == 2  # table_speedup and table_accuracy
     assert not out.exists()
 
@@ -42,12 +45,13 @@ def test_adaptive_runs_join_all_only_with_adaptive_report(tmp_path):
     default = dry_run()
     assert "rule adaptive:" not in default and "adaptive_mode_map" not in default
     output = dry_run("adaptive={report: true, thresholds: [0.02, .inf]}")
+    L = Layout(out)
     for label in ("t0.02", "tinf"):
-        assert f"output: {out}/adaptive/{label}/path2.h5" in output
-        assert f"{out}/adaptive/{label}/path1.h5" not in output
-    assert f"output: {out}/figures/adaptive_mode_map.png" in output
+        assert f"output: {L.adaptive(label, 'path2')}" in output
+        assert L.adaptive(label, "path1") not in output
+    assert f"output: {L.figure('adaptive_mode_map.png')}" in output
     tables = [line for line in output.splitlines() if line.strip().startswith("input:") and
-              f"{out}/adaptive/tinf/path2.h5" in line]
+              L.adaptive("tinf", "path2") in line]
     assert len(tables) == 3  # table_speedup, table_accuracy, figure_mode_map
     assert not out.exists()
 
@@ -63,8 +67,61 @@ def test_the_default_scale_runs_the_adaptive_curve_in_all(tmp_path):
     assert result.returncode == 0, output[-3000:]
     runs = sorted(line.split("output: ")[1].split(",")[0] for line in output.splitlines()
                   if "output: " in line and "/adaptive/" in line)
-    assert runs == [f"{out}/adaptive/t0.01/path2.h5", f"{out}/adaptive/t0.01_elastoplastic/path2.h5",
-                    f"{out}/adaptive/t0.02/path2.h5", f"{out}/adaptive/t0.02_elastoplastic/path2.h5"]
+    L = Layout(out)
+    assert runs == [L.adaptive(label, "path2") for label in ("t0.01", "t0.01_elastoplastic", "t0.02",
+                                                             "t0.02_elastoplastic")]
     assert "/biaxial/adaptive_t" not in output and "/footing/control_" not in output
-    assert f"output: {out}/figures/adaptive_mode_map.png" in output
+    assert f"output: {L.figure('adaptive_mode_map.png')}" in output
     assert not out.exists()
+
+
+# Loads the workflow and plans `all` with snakemake's command line, in this process, and lists
+# every file under the output directory (argv[1]) that anything opened meanwhile, but the output
+# lock (.workflow.lock: whether another workflow holds the directory).
+LOAD_AND_PLAN = """
+import os
+import sys
+
+out = os.path.realpath(sys.argv[1])
+opened = []
+
+
+def audit(event, args):
+    if event == "open" and isinstance(args[0], (str, bytes, os.PathLike)):
+        path = os.path.realpath(os.fsdecode(args[0]))
+        if path.startswith(out + os.sep) and os.path.basename(path) != ".workflow.lock":
+            opened.append(path)
+
+
+sys.addaudithook(audit)
+from snakemake.cli import main
+
+try:
+    main(sys.argv[2:])
+except SystemExit as done:
+    code = done.code
+print("OPENED:", sorted(set(opened)))
+sys.exit(code)
+"""
+
+
+def test_loading_the_workflow_reads_no_result_file(tmp_path):
+    """Pass criterion: the rule files only declare rules. With a damaged tables/headline.json and
+    tables/tolerance_study.csv in the output directory (written by hand: no checksum beside them),
+    `snakemake -n all` loads and plans without opening either, warns about neither, and plans the
+    headline job that rewrites them: no number of a run goes into the config."""
+    out = tmp_path / "tiny"
+    (out / "tables").mkdir(parents=True)
+    (out / "tables" / "headline.json").write_text("{not json")
+    (out / "tables" / "tolerance_study.csv").write_text("not,a\nstudy")
+    args = ["-n", "all", "--configfile", "config/tiny.yaml", "--config", f"output_dir={out}"]
+    result = subprocess.run([sys.executable, "-c", LOAD_AND_PLAN, str(out), *args], cwd=ROOT, capture_output=True,
+                            text=True, timeout=300)
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output[-3000:]
+    assert "OPENED: []" in result.stdout, output[-3000:]
+    assert "headline" not in "\n".join(line for line in output.splitlines() if "arning" in line)
+    L = Layout(str(out))
+    assert f"output: {L.table('headline.json')}, {L.table('headline.html')}" in output
+    assert (out / "tables" / "headline.json").read_text() == "{not json"
+    assert sorted(p.name for p in (out / "tables").iterdir()) == ["headline.json", "tolerance_study.csv"]

@@ -92,11 +92,6 @@ def load_schema() -> dict:
         return yaml.safe_load(f)
 
 
-#: keys the workflow itself puts into Snakemake's config for the report (never a setting):
-#: workflow/rules/analysis.smk puts tables/headline.json under "headline" for the front page
-REPORT_ONLY_KEYS = ("headline",)
-
-
 def _non_finite(value: Any, schema: dict, path: list, found: list) -> None:
     """Collect (path, value, +inf allowed) of every nan and ±inf under ``value``, following the
     schema (properties, additionalProperties, items in either form) only to find the
@@ -155,10 +150,11 @@ def _refuse(lines: list[str]) -> None:
 
 
 def validate_config(config: dict, schema: dict | None = None) -> dict:
-    """Fill defaults and validate; returns the completed config (a copy, without the
-    :data:`REPORT_ONLY_KEYS`)."""
+    """Fill defaults and validate; returns the completed config (a copy). A key the schema does not
+    know is refused, naming it (also ``headline``: the workflow keeps no numbers of a run in its
+    config; they reach the report as the pages of rule headline)."""
     schema = schema or load_schema()
-    config = {k: copy.deepcopy(v) for k, v in dict(config).items() if k not in REPORT_ONLY_KEYS}
+    config = copy.deepcopy(dict(config))
     _fill_defaults(config, schema)
     non_finite = _finite_errors(config, schema)  # first: the schema's bounds would let nan pass
     if non_finite:
@@ -268,9 +264,13 @@ def read_config_file(path: str | Path) -> dict:
     return config or {}
 
 
-def load_config(path: str | Path | None = None, overrides: dict | None = None) -> dict:
-    """Read a YAML config (default config/config.yaml), apply overrides, validate."""
-    config = read_config_file(Path(path) if path else CONFIG_DIR / "config.yaml")
+def load_config(path: str | Path | list | tuple | None = None, overrides: dict | None = None) -> dict:
+    """Read a YAML config (default config/config.yaml), or several merged in order as Snakemake
+    merges --configfile files (a nested key replaces only itself), apply overrides, validate."""
+    paths = list(path) if isinstance(path, (list, tuple)) else [path or CONFIG_DIR / "config.yaml"]
+    config = {}
+    for file in paths:
+        config = merged(config, read_config_file(Path(file)))
     for key, value in (overrides or {}).items():
         node = config
         *parents, last = key.split(".")

@@ -142,6 +142,11 @@ class Layout:
     def vtk(self, run: str, path: str) -> str:
         return self._file("vtk", run, path)
 
+    # measured by the benches (bench/), not by a rule
+    def bench(self, name: str) -> str:
+        """The record a bench of bench/ writes by default (JSON: commit, machine, settings, figures)."""
+        return self._file("bench", f"{name}.json")
+
 
 class Plan:
     """What the workflow makes from one validated config."""
@@ -158,6 +163,10 @@ class Plan:
         # what defines a packing / a FEM–DEM run, not where it runs: a change of these reruns the rule
         self.packing_definition = {k: v for k, v in dem.items() if k not in (*WHERE_DEM_RUNS, "newton")}
         self.run_definition = {k: v for k, v in dem.items() if k not in WHERE_DEM_RUNS}
+        # the Newton settings the specimen's FEM–DEM runs solve with (newton, overridden by dem.newton as
+        # drivers.fem_dem.dem_newton_config does): the tolerance study's row that measures their own error
+        self.reference_newton = {key: {**config["newton"], **dem.get("newton", {})}[key]
+                                 for key in ("tolerance", "predictor", "acceleration")}
         self.rve_path_sets = list(config["rve_paths"]["sets"])
 
         surrogate = config["surrogate"]
@@ -444,7 +453,8 @@ class Plan:
                     *[L.figure(f"fields_{q}.png") for q in FIELD_QUANTITIES],
                     *[L.vtk(run, v) for run in self.vtk_runs()], L.figure("training_curves.png"),
                     L.table("speedup.csv"), L.table("accuracy.csv"), L.table("surrogate_cost.csv"),
-                    L.figure("speed_vs_error.png"), L.table("headline.json"), L.table("validation_by_phase.csv")]
+                    L.figure("speed_vs_error.png"), L.table("headline.json"), L.table("headline.html"),
+                    L.table("validation_by_phase.csv")]
         if self.adaptive_in_report:
             targets.append(L.figure("adaptive_mode_map.png"))
         targets += [L.figure("calibration.png"), L.table("calibration.csv"), L.table("calibration.html")]

@@ -21,6 +21,7 @@ TIMING = PLAN.timing_runs(VALIDATION)  # and the other tangent, sphere counts, a
 TRAINING_CURVES = PLAN.training_curves()
 VTK_RUNS = PLAN.vtk_runs()
 
+CAT_HEADLINE = "0 Headline"
 CAT_GP = "1 Gauss points"
 CAT_SPECIMEN = "2 Specimen"
 CAT_SPEED = "3 Speed and accuracy"
@@ -252,6 +253,9 @@ rule table_surrogate_cost:
         "../../scripts/analysis_table.py"
 
 
+# The headline numbers (tables/headline.json) and the report's page that states them, with what
+# ran, the reference's tolerance and the machine (tables/headline.html, category "0 Headline"):
+# the front page (workflow/report/workflow.rst) is rendered from the config alone and points to it.
 rule headline:
     input:
         speedup=L.table("speedup.csv"),
@@ -259,7 +263,9 @@ rule headline:
         cost=L.table("surrogate_cost.csv"),
         reference=PLAN.reference_run(VALIDATION),
     output:
-        L.table("headline.json"),
+        json=L.table("headline.json"),
+        page=report(L.table("headline.html"), caption="../report/headline.rst", category=CAT_HEADLINE,
+                    subcategory="Headline numbers"),
     log:
         L.log("analysis/headline"),
     benchmark:
@@ -319,36 +325,3 @@ rule figure_calibration:
         surrogate_label=PLAN.surrogate_label,
     script:
         "../../scripts/analysis_calibration.py"
-
-
-# The report's front page (workflow/report/workflow.rst) states the headline numbers. Its
-# template sees only the config, so the numbers of tables/headline.json go under
-# config["headline"]:
-#   * when the workflow is loaded, if the file exists: `snakemake --report`, the API's
-#     create_report and any other way of building the report from a finished run;
-#   * again after a successful run (onsuccess), so that `--report-after-run` states the numbers
-#     this run has just written, not those of an earlier run (or none, on a fresh run).
-# Jobs never depend on it: no rule's params or input holds it (so it never makes a rule rerun),
-# onstart (Snakefile) takes it out of the config before the first job, and validate_config drops it (a job
-# that reloads the workflow, on a cluster or with --nohooks, validates its config).
-HEADLINE_FILE = L.table("headline.json")
-
-
-def show_headline():
-    from granular_multiscale.analysis.products import read_headline
-
-    try:  # with the reference's own error when the tolerance study has run
-        headline = read_headline(HEADLINE_FILE, tolerance_study=L.table("tolerance_study.csv"))
-    except (ValueError, OSError) as error:  # a damaged file must not stop the workflow that rebuilds it
-        from snakemake.logging import logger
-
-        logger.warning(f"{error}: the report's front page will lack the headline numbers")
-        headline = None
-    if headline is None:
-        config.pop("headline", None)
-    else:
-        config["headline"] = headline
-
-
-show_headline()
-

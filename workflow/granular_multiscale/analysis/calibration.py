@@ -163,26 +163,32 @@ def _shade_phases(ax, steps: np.ndarray, phases: np.ndarray) -> None:
 
 
 def calibration_figure(points: pd.DataFrame, table: pd.DataFrame, steps: pd.DataFrame, out: str | Path, *,
-                       k: int, title: str, figsize=(10.0, 4.2), dpi: int = 120) -> Path:
+                       k: int, title: str, figsize=(10.0, 4.2), dpi: int = 120) -> dict:
     """Left: error against spread (kPa, log axes, hexbin of the (step, point) pairs), the y = x line and
     the median and 90th-percentile error per spread decile. Right: per load step, median and 90th
-    percentile over the Gauss points of spread and error, unloading/reloading shaded."""
+    percentile over the Gauss points of spread and error, unloading/reloading shaded.
+
+    Returns what it drew (``figures.Curves``): panel 'error_vs_spread' with the hexbin's pairs under
+    'pairs' and the decile curves (empty without a positive spread), panel 'per_step' with the
+    curves against the load step, each under its legend label."""
     from . import figures
 
     plt = figures.plt
     fig, (ax_c, ax_p) = plt.subplots(1, 2, figsize=figsize)
     fig.subplots_adjust(left=0.08, right=0.98, bottom=0.13, top=0.84, wspace=0.25)
+    drawn: figures.Curves = {"error_vs_spread": {}, "per_step": {}}
     plotted = points[(points.spread_kpa > 0) & (points.error_kpa > 0)]
     if len(plotted):
         x, y = plotted.spread_kpa.to_numpy(), plotted.error_kpa.to_numpy()
+        drawn["error_vs_spread"]["pairs"] = (x, y)
         ax_c.hexbin(x, y, xscale="log", yscale="log", gridsize=30, mincnt=1, cmap="Blues", bins="log", linewidths=0.2)
         lo, hi = min(x.min(), y.min()) / 1.5, max(x.max(), y.max()) * 1.5
         ax_c.plot([lo, hi], [lo, hi], color="black", linewidth=1.0, label="error = spread")
         bins = table[table.decile != "all"]
-        ax_c.plot(bins.median_spread_kpa, bins.median_error_kpa, "o-", color="tab:red", markersize=4,
-                  label="median error per spread decile")
-        ax_c.plot(bins.median_spread_kpa, bins.p90_error_kpa, "v--", color="tab:red", markersize=4, alpha=0.7,
-                  label="90th percentile per decile")
+        for column, fmt, alpha, label in (("median_error_kpa", "o-", 1.0, "median error per spread decile"),
+                                          ("p90_error_kpa", "v--", 0.7, "90th percentile per decile")):
+            drawn["error_vs_spread"][label] = (bins.median_spread_kpa.to_numpy(), bins[column].to_numpy())
+            ax_c.plot(*drawn["error_vs_spread"][label], fmt, color="tab:red", markersize=4, alpha=alpha, label=label)
         ax_c.set_xlim(lo, hi)
         ax_c.set_ylim(lo, hi)
         left_out = len(points) - len(plotted)
@@ -202,18 +208,22 @@ def calibration_figure(points: pd.DataFrame, table: pd.DataFrame, steps: pd.Data
 
     step = steps.step.to_numpy()
     _shade_phases(ax_p, step, steps.phase.to_numpy())
-    ax_p.plot(step, steps.median_error_kpa, color="tab:red", label="error, median")
-    ax_p.plot(step, steps.p90_error_kpa, color="tab:red", linestyle="--", label="error, 90th percentile")
+    curves = [("error, median", "median_error_kpa", "tab:red", "-"),
+              ("error, 90th percentile", "p90_error_kpa", "tab:red", "--")]
     if k > 1:
-        ax_p.plot(step, steps.median_spread_kpa, color="tab:blue", label="spread, median")
-        ax_p.plot(step, steps.p90_spread_kpa, color="tab:blue", linestyle="--", label="spread, 90th percentile")
+        curves += [("spread, median", "median_spread_kpa", "tab:blue", "-"),
+                   ("spread, 90th percentile", "p90_spread_kpa", "tab:blue", "--")]
+    for label, column, colour, dash in curves:
+        drawn["per_step"][label] = (step, steps[column].to_numpy())
+        ax_p.plot(*drawn["per_step"][label], color=colour, linestyle=dash, label=label)
     ax_p.set_xlabel("load step")
     ax_p.set_ylabel("kPa, over the Gauss points")
     ax_p.set_ylim(bottom=0.0)
     ax_p.grid(alpha=0.3)
     ax_p.legend(fontsize=7, loc="upper left")
     fig.suptitle(f"{title}\n{ensemble_note(k)}", fontsize=10)
-    return figures.save_figure(fig, out, dpi)
+    figures.save_figure(fig, out, dpi)
+    return drawn
 
 
 # --------------------------------------------------------------------------------------
@@ -235,8 +245,9 @@ HEADERS = {
 
 
 def make_calibration(run_file, reference_file, out_png, out_csv, out_html, settings: Mapping, *,
-                     path_label: str, reference_label: str, surrogate_label: str) -> pd.DataFrame:
-    """Figure, CSV and HTML table of the spread's calibration; returns the table."""
+                     path_label: str, reference_label: str, surrogate_label: str) -> tuple[pd.DataFrame, dict]:
+    """Figure, CSV and HTML table of the spread's calibration; returns the table and what the
+    figure drew (:func:`calibration_figure`)."""
     run = data.read_run(run_file)
     reference = data.read_run(reference_file)
     points = calibration_points(run, reference, label=f"{run_file} (against {reference_file})")
@@ -245,11 +256,11 @@ def make_calibration(run_file, reference_file, out_png, out_csv, out_html, setti
     title = (f"{path_label}: ensemble spread of {legend_label(surrogate_label, run)} vs its error against "
              f"{reference_label}")
     width = float(settings.get("figure_width", 10.0))
-    calibration_figure(points, table, step_summary(points), out_png, k=k, title=title,
-                       figsize=(width, 0.42 * width), dpi=int(settings.get("dpi", 120)))
+    drawn = calibration_figure(points, table, step_summary(points), out_png, k=k, title=title,
+                               figsize=(width, 0.42 * width), dpi=int(settings.get("dpi", 120)))
     tables.write_csv(table, out_csv)
     note = (f"{ensemble_note(k)}. Spread: the norm of the standard deviation over the members of each stress "
             "component at the converged strain; error: the norm of the stress difference from the reference; "
             f"per (load step >= 1, Gauss point), {len(points)} pairs; deciles of equal count by spread.")
     tables.write_html_table(table, out_html, title=title, note=note, headers=HEADERS, digits=3)
-    return table
+    return table, drawn

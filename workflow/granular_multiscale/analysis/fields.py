@@ -230,12 +230,15 @@ def field_comparison(
     figsize=(10.0, 11.0),
     dpi: int = 120,
     window_size=(420, 620),
-) -> Path:
+) -> dict[int, dict[str, np.ndarray]]:
     """Rows: load steps; columns: reference | surrogate | surrogate − reference.
 
     Reference and surrogate share one colour scale per row (diverging and symmetric about 0
     when the field changes sign); the difference has its own symmetric scale. Each mesh is
     drawn deformed by its own displacement; the difference on the reference's.
+
+    Returns what it drew: {step: {'reference' | 'surrogate' | 'difference': the values at the
+    nodes or per element}}; a step the surrogate run did not reach has the reference only.
     """
     import matplotlib.pyplot as plt
 
@@ -250,15 +253,18 @@ def field_comparison(
     renderer = PanelRenderer(window_size)
     fig, axes = plt.subplots(len(steps), 3, figsize=figsize, squeeze=False)
     fig.subplots_adjust(left=0.03, right=0.93, bottom=0.01, top=0.9, wspace=0.35, hspace=0.08)
+    drawn: dict[int, dict[str, np.ndarray]] = {}
     try:
         for row, step in enumerate(steps):
             if step > last_surrogate_step:
-                _reference_only_row(fig, axes[row], renderer, reference, elements, quantity, step,
-                                    deformation_scale, labels, row == 0, last_surrogate_step)
+                drawn[step] = {"reference": _reference_only_row(fig, axes[row], renderer, reference, elements, quantity,
+                                                                step, deformation_scale, labels, row == 0,
+                                                                last_surrogate_step)}
                 continue
             ref_v = field_on_mesh(reference, quantity, step, n_el)
             sur_v = field_on_mesh(surrogate, quantity, step, n_el)
             diff = sur_v - ref_v
+            drawn[step] = {"reference": ref_v, "surrogate": sur_v, "difference": diff}
             floor = NOISE_FRACTION * max(q.magnitude(reference, step), q.magnitude(surrogate, step))
             signed = bool(min(ref_v.min(), sur_v.min()) < -floor and max(ref_v.max(), sur_v.max()) > floor)
             clim = _limits(ref_v, sur_v, symmetric=signed, floor=floor)
@@ -292,12 +298,14 @@ def field_comparison(
     finally:
         renderer.close()
     fig.suptitle(title or f"{q.label} on the deformed mesh (displacement ×{deformation_scale:g})", fontsize=11)
-    return save_figure(fig, out, dpi)
+    save_figure(fig, out, dpi)
+    return drawn
 
 
 def _reference_only_row(fig, axes, renderer, reference, elements, quantity, step, deformation_scale, labels,
-                        first_row, last_surrogate_step) -> None:
-    """A row at a step the surrogate run did not reach: the reference field, and say so."""
+                        first_row, last_surrogate_step) -> np.ndarray:
+    """A row at a step the surrogate run did not reach: the reference field, and say so. Returns
+    the values drawn."""
     import matplotlib.pyplot as plt
 
     q = FIELD_QUANTITIES[quantity]
@@ -322,6 +330,7 @@ def _reference_only_row(fig, axes, renderer, reference, elements, quantity, step
             name = labels[0] if col == 0 else labels[1] if col == 1 else f"{labels[1]} − {labels[0]}"
             ax.set_title(textwrap.fill(name, 26), fontsize=9)
     axes[0].set_ylabel(f"step {step}", fontsize=10)
+    return values
 
 
 # --------------------------------------------------------------------------------------

@@ -2,7 +2,9 @@
 
 Every function takes data (xarray Datasets in the data contract, pandas tables) and an
 output path, draws on a fixed canvas (``figsize`` inches × ``dpi``, no tight bounding box,
-so the PNG size is known in advance) and writes the PNG atomically.
+so the PNG size is known in advance), writes the PNG atomically and returns the numbers it
+drew, each curve drawn from them: a line figure ``{panel: {curve: (x, y)}}`` (:data:`Curves`),
+in the units of its axes; the error map a table of its points; each function says which.
 
 Runs are passed as an ordered ``{label: Dataset}`` mapping whose first entry is the
 reference; labels appear verbatim in the legends.
@@ -33,6 +35,10 @@ STYLES = (
     dict(color="tab:purple", linestyle="--", linewidth=1.2, marker="v", markersize=3),
     dict(color="tab:brown", linestyle=":", linewidth=1.2, marker="d", markersize=3),
 )
+
+
+# what a line figure drew: {panel: {curve label: (x, y)}}, in the units of the panel's axes
+Curves = dict[str, dict[str, tuple[np.ndarray, np.ndarray]]]
 
 
 def style(k: int) -> dict:
@@ -82,9 +88,12 @@ def error_map(
     reference_label: str = "reference",
     figsize=(10.0, 5.5),
     dpi: int = 120,
-) -> Path:
+) -> pd.DataFrame:
     """Per-Gauss-point absolute stress error ``error_kpa`` [gp] drawn at the Gauss points of
-    ``reference`` in 3D, training ○ vs held-out △ points."""
+    ``reference`` in 3D, training ○ vs held-out △ points.
+
+    Returns what it drew: one row per point, columns gp, group ('training' or 'held out'),
+    x, y, z (m) and error_kpa (its colour, and its value in the box plot of its group)."""
     position = reference["gp_position"].values
     error_kpa = np.asarray(error_kpa, dtype=float)
     if error_kpa.shape != (len(position),):
@@ -97,15 +106,23 @@ def error_map(
     lower = reference["node_position"].values.min(axis=0)
     upper = reference["node_position"].values.max(axis=0)
 
+    groups = (("training", train_gp, "o"), ("held out", heldout_gp, "^"))
+    gp = np.concatenate([idx for _, idx, _ in groups])
+    group = np.repeat([name for name, _, _ in groups], [idx.size for _, idx, _ in groups])
+    drawn = pd.DataFrame({"gp": gp, "group": group, "x": position[gp, 0], "y": position[gp, 1], "z": position[gp, 2],
+                          "error_kpa": error_kpa[gp]})
+    points = {name: drawn[drawn["group"] == name] for name, _, _ in groups}
+
     fig = plt.figure(figsize=figsize)
     ax = fig.add_axes([0.0, 0.0, 0.58, 0.9], projection="3d")
     norm = matplotlib.colors.Normalize(vmin=0.0, vmax=max(float(error_kpa.max()), 1e-12))
     cmap = plt.get_cmap("viridis")
-    for idx, marker, name in ((train_gp, "o", "training"), (heldout_gp, "^", "held out")):
-        if idx.size:
-            ax.scatter(*position[idx].T, c=error_kpa[idx], cmap=cmap, norm=norm, marker=marker,
-                       s=46 if marker == "^" else 30, edgecolors="k", linewidths=0.4,
-                       depthshade=False, label=f"{name} ({idx.size})")
+    for name, _, marker in groups:
+        rows = points[name]
+        if len(rows):
+            ax.scatter(*rows[["x", "y", "z"]].to_numpy().T, c=rows["error_kpa"].to_numpy(), cmap=cmap, norm=norm,
+                       marker=marker, s=46 if marker == "^" else 30, edgecolors="k", linewidths=0.4,
+                       depthshade=False, label=f"{name} ({len(rows)})")
     _box_edges(ax, lower, upper)
     ax.set_box_aspect(upper - lower, zoom=0.82)
     for pane in (ax.xaxis, ax.yaxis, ax.zaxis):
@@ -125,9 +142,9 @@ def error_map(
     bar.set_label("mean |σ error| (kPa)")
 
     side = fig.add_axes([0.75, 0.15, 0.22, 0.65])
-    groups = [error_kpa[train_gp], error_kpa[heldout_gp]]
-    side.boxplot([g for g in groups], tick_labels=["training", "held out"], widths=0.5, showfliers=False)
-    for k, (g, marker) in enumerate(zip(groups, ("o", "^")), start=1):
+    values = [points[name]["error_kpa"].to_numpy() for name, _, _ in groups]
+    side.boxplot(values, tick_labels=["training", "held out"], widths=0.5, showfliers=False)
+    for k, (g, marker) in enumerate(zip(values, ("o", "^")), start=1):
         jitter = np.linspace(-0.12, 0.12, g.size) if g.size > 1 else np.zeros(g.size)
         side.scatter(k + jitter, g, c=g, cmap=cmap, norm=norm, marker=marker, s=14, edgecolors="k", linewidths=0.3)
     side.set_ylabel("mean |σ error| (kPa)")
@@ -138,7 +155,8 @@ def error_map(
         "mean over load steps and the six components",
         fontsize=10,
     )
-    return save_figure(fig, out, dpi)
+    save_figure(fig, out, dpi)
+    return drawn
 
 
 # --------------------------------------------------------------------------------------
@@ -153,17 +171,23 @@ def stress_strain(
     title: str,
     figsize=(10.0, 4.2),
     dpi: int = 120,
-) -> Path:
-    """q and volumetric strain against the local axial strain −ε33 at Gauss point ``gp``."""
+) -> Curves:
+    """q and volumetric strain against the local axial strain −ε33 at Gauss point ``gp``.
+
+    Returns what it drew: panels 'q_kpa' and 'volumetric_strain_pct', one curve per run
+    (x: −ε33 in %)."""
     fig, (ax_q, ax_v) = plt.subplots(1, 2, figsize=figsize)
     fig.subplots_adjust(left=0.08, right=0.98, bottom=0.13, top=0.86, wspace=0.28)
+    drawn: Curves = {"q_kpa": {}, "volumetric_strain_pct": {}}
     for k, (label, ds) in enumerate(runs.items()):
         strain = ds["strain"].sel(gp=gp).transpose("step", "comp").values
         stress = ds["stress"].sel(gp=gp).transpose("step", "comp").values
         ea = 100 * qty.local_axial_strain(strain)
+        drawn["q_kpa"][label] = (ea, 1e-3 * qty.deviatoric_stress(stress))
+        drawn["volumetric_strain_pct"][label] = (ea, 100 * qty.volumetric_strain(strain))
         s = style(k)
-        ax_q.plot(ea, 1e-3 * qty.deviatoric_stress(stress), label=label, **s)
-        ax_v.plot(ea, 100 * qty.volumetric_strain(strain), label=label, **s)
+        ax_q.plot(*drawn["q_kpa"][label], label=label, **s)
+        ax_v.plot(*drawn["volumetric_strain_pct"][label], label=label, **s)
     ax_q.set_xlabel("local axial strain −ε33 (%)")
     ax_q.set_ylabel("deviatoric stress q (kPa)")
     ax_v.set_xlabel("local axial strain −ε33 (%)")
@@ -172,7 +196,8 @@ def stress_strain(
         ax.grid(alpha=0.3)
     ax_q.legend(fontsize=8)
     fig.suptitle(title, fontsize=10)
-    return save_figure(fig, out, dpi)
+    save_figure(fig, out, dpi)
+    return drawn
 
 
 # --------------------------------------------------------------------------------------
@@ -187,8 +212,10 @@ def global_response(
     marked_steps=(),
     figsize=(10.0, 4.2),
     dpi: int = 120,
-) -> Path:
-    """Top force (compression positive, kN) and specimen volumetric strain against load step."""
+) -> Curves:
+    """Top force (compression positive, kN) and specimen volumetric strain against load step.
+
+    Returns what it drew: panels 'top_force_kn' and 'volumetric_strain_pct', one curve per run."""
     fig, (ax_f, ax_v) = plt.subplots(1, 2, figsize=figsize)
     fig.subplots_adjust(left=0.08, right=0.98, bottom=0.13, top=0.88, wspace=0.28)
     reference = next(iter(runs.values()))
@@ -196,10 +223,13 @@ def global_response(
         _shade_unloading(ax, reference["phase"].values, reference["step"].values)
         for step in marked_steps:
             ax.axvline(step, color="0.5", linewidth=0.8, linestyle="--")
+    drawn: Curves = {"top_force_kn": {}, "volumetric_strain_pct": {}}
     for k, (label, ds) in enumerate(runs.items()):
+        drawn["top_force_kn"][label] = (ds["step"].values, -1e-3 * ds["top_force"].values)
+        drawn["volumetric_strain_pct"][label] = (ds["step"].values, 100 * ds["volumetric_strain"].values)
         s = style(k)
-        ax_f.plot(ds["step"].values, -1e-3 * ds["top_force"].values, label=label, **s)
-        ax_v.plot(ds["step"].values, 100 * ds["volumetric_strain"].values, label=label, **s)
+        ax_f.plot(*drawn["top_force_kn"][label], label=label, **s)
+        ax_v.plot(*drawn["volumetric_strain_pct"][label], label=label, **s)
     ax_f.set_ylabel("top force, compression + (kN)")
     ax_v.set_ylabel("volumetric strain (%), dilation +")
     for ax in (ax_f, ax_v):
@@ -210,7 +240,8 @@ def global_response(
     if len(marked_steps):
         note = "\ndashed lines: steps " + ", ".join(str(s) for s in marked_steps) + " of the field figures"
     fig.suptitle(f"{path_label}: top force and volumetric strain{note}", fontsize=10)
-    return save_figure(fig, out, dpi)
+    save_figure(fig, out, dpi)
+    return drawn
 
 
 # --------------------------------------------------------------------------------------
@@ -224,12 +255,16 @@ def training_curves(
     loss_name: str = "MAE",
     figsize=(10.0, 4.2),
     dpi: int = 120,
-) -> Path:
+) -> Curves:
     """One panel per network; each curve table has columns epoch, train_loss, heldout_loss and,
     for an ensemble, member (one curve per member, the first drawn solid, the others faint).
 
     ``curves`` keys are 'panel title|series label' (e.g. 'NNσ|with history'); series in the
     same panel share its axes.
+
+    Returns what it drew: per panel title, the curves (epoch, loss) under their legend labels
+    ('training (with history)', 'held out (with history)'; 'training', 'held out' without a
+    series label), an ensemble's with ', member <m>' added.
     """
     panels: dict[str, list[tuple[str, pd.DataFrame]]] = {}
     for key, table in curves.items():
@@ -241,7 +276,9 @@ def training_curves(
     fig, axes = plt.subplots(1, len(panels), figsize=figsize, squeeze=False)
     # 0.8 inch on the left for the y label, whatever the width (the training rules draw 6-inch panels)
     fig.subplots_adjust(left=0.8 / figsize[0], right=0.98, bottom=0.13, top=0.85, wspace=0.25)
+    drawn: Curves = {}
     for ax, (panel, series_list) in zip(axes[0], panels.items()):
+        drawn[panel] = {}
         for k, (series, table) in enumerate(series_list):
             colour = style(k + 1)["color"]
             members = list(table.groupby("member")) if "member" in table else [(0, table)]
@@ -249,12 +286,13 @@ def training_curves(
                 series = f"{series}, " if series else ""
                 series += f"{len(members)} members"
             suffix = f" ({series})" if series else ""
-            for m, (_, rows) in enumerate(members):
+            for m, (member, rows) in enumerate(members):
                 alpha = 0.35 if m else 1.0  # members after the first: faint and unlabelled
-                ax.plot(rows["epoch"], rows["train_loss"], color=colour, linestyle="-", alpha=alpha,
-                        label=None if m else f"training{suffix}")
-                ax.plot(rows["epoch"], rows["heldout_loss"], color=colour, linestyle="--", alpha=alpha,
-                        label=None if m else f"held out{suffix}")
+                for line, column, dash in (("training", "train_loss", "-"), ("held out", "heldout_loss", "--")):
+                    name = f"{line}{suffix}" + (f", member {member}" if len(members) > 1 else "")
+                    drawn[panel][name] = (rows["epoch"].to_numpy(), rows[column].to_numpy())
+                    ax.plot(*drawn[panel][name], color=colour, linestyle=dash, alpha=alpha,
+                            label=None if m else f"{line}{suffix}")
         ax.set_yscale("log")
         ax.set_xlabel("epoch")
         ax.set_ylabel(f"{loss_name} loss (scaled targets)")
@@ -262,7 +300,8 @@ def training_curves(
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
     fig.suptitle("Training and held-out loss per epoch", fontsize=10)
-    return save_figure(fig, out, dpi)
+    save_figure(fig, out, dpi)
+    return drawn
 
 
 # --------------------------------------------------------------------------------------
@@ -276,25 +315,31 @@ def speed_vs_error(
     errors: Mapping[str, str],
     figsize=(10.0, 4.5),
     dpi: int = 120,
-) -> Path:
+) -> Curves:
     """Wall time (log axis) against error to the reference, one point per run.
 
     ``table`` has a 'label' and a 'wall_time_s' column and one column per entry of
     ``errors`` ({column: axis label}); one panel per error measure. An optional 'curve' column
     (a number, NaN off the curve) joins its rows in that order by a line: FEM–ML, the adaptive
     runs from the highest threshold to the lowest, FEM–DEM.
+
+    Returns what it drew: per error column, each run's point (error, wall time in s) under its
+    label, and the line through the curve's points under 'curve' when there is one.
     """
     fig, axes = plt.subplots(1, len(errors), figsize=figsize, squeeze=False)
     fig.subplots_adjust(left=0.09, right=0.98, bottom=0.13, top=0.88, wspace=0.25)
     on_curve = table.dropna(subset=["curve"]).sort_values("curve") if "curve" in table else table.iloc[:0]
+    drawn: Curves = {}
     for ax, (column, axis_label) in zip(axes[0], errors.items()):
+        drawn[column] = {}
         if len(on_curve) > 1:
-            ax.plot(on_curve[column], on_curve["wall_time_s"], color="0.5", linewidth=1.0, zorder=2,
+            drawn[column]["curve"] = (on_curve[column].to_numpy(), on_curve["wall_time_s"].to_numpy())
+            ax.plot(*drawn[column]["curve"], color="0.5", linewidth=1.0, zorder=2,
                     label="adaptive FEM–DEM–ML, threshold from ∞ (FEM–ML) to 0 (FEM–DEM)")
         for k, row in enumerate(table.itertuples(index=False)):
             s = style(k)
-            error = getattr(row, column)
-            ax.scatter(error, row.wall_time_s, color=s["color"], marker=s["marker"] or "*",
+            drawn[column][row.label] = (getattr(row, column), row.wall_time_s)
+            ax.scatter(*drawn[column][row.label], color=s["color"], marker=s["marker"] or "*",
                        s=120 if k == 0 else 60, edgecolors="k", linewidths=0.5, zorder=3, label=row.label)
         ax.set_yscale("log")
         ax.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
@@ -315,7 +360,8 @@ def speed_vs_error(
     fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=2, frameon=False)
     fig.subplots_adjust(bottom=0.13 + 0.045 * ((len(labels) + 1) // 2))
     fig.suptitle("Speed vs error: each point one run on this machine (reference at error 0)", fontsize=10)
-    return save_figure(fig, out, dpi)
+    save_figure(fig, out, dpi)
+    return drawn
 
 
 # --------------------------------------------------------------------------------------
@@ -333,20 +379,25 @@ def dem_share_xz(ds: xr.Dataset, step: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def mode_map(runs: Mapping[str, xr.Dataset], steps: list[int], out: str | Path, *, title: str,
-             figsize=(10.0, 6.0), dpi: int = 120) -> Path:
+             figsize=(10.0, 6.0), dpi: int = 120) -> dict[str, dict[int, tuple[np.ndarray, np.ndarray]]]:
     """One row per adaptive run, one column per load step: the Gauss points in the x–z plane,
     coloured by the share of the points at that (x, z) (the points behind each other along y)
-    that answered from their YADE RVE at that step (``point_mode``)."""
+    that answered from their YADE RVE at that step (``point_mode``).
+
+    Returns what it drew: {run label: {step: ([m, 2] the (x, z) of the points, [m] their share)}}."""
     labels = list(runs)
     fig, axes = plt.subplots(len(labels), len(steps), figsize=figsize, squeeze=False, sharex=True, sharey=True)
     height = fig.get_size_inches()[1]  # room in inches: the title above, two-line panel titles, x labels
     fig.subplots_adjust(left=0.08, right=0.88, bottom=0.45 / height, top=1 - 0.8 / height, wspace=0.08,
                         hspace=0.6 * len(labels) / max(height - 1.25, 0.5))
     image = None
+    drawn: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
     for row, label in zip(axes, labels):
         ds = runs[label]
+        drawn[label] = {}
         for ax, step in zip(row, steps):
             columns, share = dem_share_xz(ds, step)
+            drawn[label][step] = (columns, share)
             mode = ds["point_mode"].transpose("step", "gp").values[step]
             image = ax.scatter(columns[:, 0], columns[:, 1], c=share, cmap="coolwarm", vmin=0.0, vmax=1.0, s=40,
                                edgecolors="k", linewidths=0.3)
@@ -364,10 +415,12 @@ def mode_map(runs: Mapping[str, xr.Dataset], steps: list[int], out: str | Path, 
     bar = fig.add_axes([0.90, 0.15, 0.015, 0.65])
     fig.colorbar(image, cax=bar).set_label("share of the points (along y) in DEM mode", fontsize=8)
     fig.suptitle(title, fontsize=10)
-    return save_figure(fig, out, dpi)
+    save_figure(fig, out, dpi)
+    return drawn
 
 
-def plot_losses(losses: dict[str, pd.DataFrame], path, loss_name: str = "MAE") -> None:
-    """Training and held-out loss per epoch of one or more networks (panel per key), log scale."""
-    training_curves({f"{label}|": df for label, df in losses.items()}, path, loss_name=loss_name,
-                    figsize=(6.0 * len(losses), 4.0))
+def plot_losses(losses: dict[str, pd.DataFrame], path, loss_name: str = "MAE") -> Curves:
+    """Training and held-out loss per epoch of one or more networks (panel per key), log scale.
+    Returns what it drew (:func:`training_curves`): {network: {'training' | 'held out': (epoch, loss)}}."""
+    return training_curves({f"{label}|": df for label, df in losses.items()}, path, loss_name=loss_name,
+                           figsize=(6.0 * len(losses), 4.0))

@@ -2,7 +2,8 @@
 
 Every function takes file paths and the config's ``analysis`` section, reads the run files
 through ``data.read_run`` (which names the file on any problem), and writes its outputs
-atomically. Runs are given as ordered ``{label: file}`` mappings, the reference first.
+atomically. Runs are given as ordered ``{label: file}`` mappings, the reference first. A
+figure's function returns the numbers it drew (see ``figures``), a table's the table.
 """
 
 from __future__ import annotations
@@ -74,7 +75,8 @@ def specimen_bounds(ds: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
 
 
 def make_error_map(reference_file, surrogate_file, train_file, heldout_file, out, settings: Mapping, *,
-                   path_label: str, reference_label: str, surrogate_label: str) -> Path:
+                   path_label: str, reference_label: str, surrogate_label: str) -> pd.DataFrame:
+    """The error map; returns its points (``figures.error_map``)."""
     from . import figures
 
     reference = data.read_run(reference_file)
@@ -104,8 +106,9 @@ def stress_strain_points(reference: xr.Dataset, heldout_gp, settings: Mapping) -
 
 
 def make_stress_strain(run_files: Mapping[str, str], train_file, heldout_file, outs: Mapping[str, str],
-                       settings: Mapping, *, path_label: str) -> dict[str, int]:
-    """One figure per selected held-out Gauss point; ``outs`` maps point name -> PNG path."""
+                       settings: Mapping, *, path_label: str) -> tuple[dict[str, int], dict[str, dict]]:
+    """One figure per selected held-out Gauss point; ``outs`` maps point name -> PNG path.
+    Returns ({point name: gp}, {point name: the curves its figure drew})."""
     from . import figures
 
     runs = read_runs(run_files)
@@ -114,16 +117,18 @@ def make_stress_strain(run_files: Mapping[str, str], train_file, heldout_file, o
     points = stress_strain_points(reference, heldout_gp, settings)
     if set(points) != set(outs):
         raise ValueError(f"stress–strain outputs {sorted(outs)} do not match the selected points {sorted(points)}")
+    drawn = {}
     for name, gp in points.items():
         where = selection.DESCRIPTIONS.get(name, "chosen in the config")
         xyz = ", ".join(f"{v:.3f}" for v in reference["gp_position"].sel(gp=gp).values)
         status = "held out" if gp in set(heldout_gp.tolist()) else "TRAINING point"
-        figures.stress_strain(runs, gp, outs[name], title=f"{path_label}, Gauss point {gp} ({status}) {where}, at ({xyz}) m",
-                              figsize=_size(settings, "line"), dpi=_dpi(settings))
-    return points
+        drawn[name] = figures.stress_strain(
+            runs, gp, outs[name], title=f"{path_label}, Gauss point {gp} ({status}) {where}, at ({xyz}) m",
+            figsize=_size(settings, "line"), dpi=_dpi(settings))
+    return points, drawn
 
 
-def make_global_response(run_files: Mapping[str, str], out, settings: Mapping, *, path_label: str) -> Path:
+def make_global_response(run_files: Mapping[str, str], out, settings: Mapping, *, path_label: str) -> dict:
     from . import figures
 
     runs = read_runs(run_files)
@@ -134,7 +139,7 @@ def make_global_response(run_files: Mapping[str, str], out, settings: Mapping, *
 
 
 def make_field_figure(reference_file, surrogate_file, quantity: str, out, settings: Mapping, *,
-                      path_label: str, reference_label: str, surrogate_label: str) -> Path:
+                      path_label: str, reference_label: str, surrogate_label: str) -> dict:
     from . import fields
 
     reference = data.read_run(reference_file)
@@ -157,7 +162,7 @@ def make_vtk(run_file, out_dir, stem: str) -> Path:
     return fields.write_vtu_series(data.read_run(run_file), out_dir, stem)
 
 
-def make_training_curves(curve_files: Mapping[str, str], out, settings: Mapping) -> Path:
+def make_training_curves(curve_files: Mapping[str, str], out, settings: Mapping) -> dict:
     """``curve_files`` keys are 'panel|series' (see ``figures.training_curves``)."""
     from . import figures
 
@@ -202,7 +207,7 @@ def fmt(value, digits: int = 3) -> str:
     return f"{value:.{digits}g}"
 
 
-# -- numbers as people read them (the front page prints these strings) -----------------
+# -- numbers as people read them (the report's pages print these strings) ---------------
 
 
 def readable_number(value, digits: int = 3) -> str:
@@ -315,7 +320,7 @@ def make_speedup_outputs(run_files: Mapping[str, str], out_csv, out_html, *, pat
     return table
 
 
-def make_speed_vs_error(speedup_csv, accuracy_csv, out, settings: Mapping, curve: Sequence[str] = ()) -> Path:
+def make_speed_vs_error(speedup_csv, accuracy_csv, out, settings: Mapping, curve: Sequence[str] = ()) -> dict:
     """The speed-vs-error figure of :func:`speed_error_table`."""
     from . import figures
 
@@ -346,7 +351,7 @@ def speed_error_table(speedup_csv, accuracy_csv, curve: Sequence[str] = ()) -> t
     return merged.rename(columns={"method": "label"}), error_columns
 
 
-def make_mode_map(files: Mapping[str, str | Path], out, settings: Mapping, *, path_label: str) -> Path:
+def make_mode_map(files: Mapping[str, str | Path], out, settings: Mapping, *, path_label: str) -> dict:
     """Rule figure_mode_map: which Gauss points ran DEM in each adaptive run, at the field figures'
     steps (analysis.field_steps)."""
     from . import figures
@@ -466,9 +471,10 @@ def _reduction_from_config(config: Mapping) -> dict:
 
 
 def make_headline(speedup_csv, accuracy_csv, out, *, config: Mapping, reference_label: str,
-                  surrogate_label: str, ablation_label: str | None, reference_run=None, cost_csv=None) -> dict:
-    """The numbers the report's front page states (JSON), and under ``display`` the same numbers
-    written as people read them (the front page prints those strings).
+                  surrogate_label: str, ablation_label: str | None, reference_run=None, cost_csv=None,
+                  page=None) -> dict:
+    """The headline numbers (JSON), and under ``display`` the same numbers written as people read
+    them; with ``page``, also the report's headline page there (:func:`headline_page`, HTML).
 
     ``reference_run``: the reference run file of the validation path; what it modelled (symmetry,
     uniform field, Gauss points of its mesh, material points evaluated) is read from it (without
@@ -523,21 +529,26 @@ def make_headline(speedup_csv, accuracy_csv, out, *, config: Mapping, reference_
         headline["reference_newton"] = newton_settings_of(reference)
     headline["display"] = headline_display(headline)
     write_json(headline, out)
+    if page is not None:
+        write_page(headline_page(headline), page)
     return headline
 
 
+def readable_small(value) -> str:
+    """A tolerance or a residual: two digits, no exponent, no trailing zeros (2e-3 -> '0.002')."""
+    text = readable_number(value, 2)
+    return text.rstrip("0").rstrip(".") if "." in text else text
+
+
 def headline_display(h: Mapping) -> dict:
-    """The headline's numbers as the front page prints them."""
+    """The headline's numbers as the headline page prints them."""
     def pct(v):
         return None if v is None else f"{readable_number(v)} %"
 
     def kpa(v):
         return None if v is None else f"{readable_number(v)} kPa"
 
-    def small(v):  # a tolerance or a residual: two digits, no exponent, no trailing zeros
-        text = readable_number(v, 2)
-        return text.rstrip("0").rstrip(".") if "." in text else text
-
+    small = readable_small
     n = h.get("break_even_runs")
     newton = h.get("reference_newton") or {}
     convergence = h.get("reference_convergence") or {}
@@ -559,25 +570,189 @@ def headline_display(h: Mapping) -> dict:
     }
 
 
-def read_headline(path, tolerance_study=None) -> dict | None:
-    """The headline JSON for the report's front page; None when the file does not exist yet.
+# -- the report's headline pages (category "0 Headline") ---------------------------------
+# The report's front page (workflow/report/workflow.rst) is rendered from the config alone;
+# the numbers of a run reach the report as these pages, written by the jobs that know them:
+# headline_page by rule headline (with tables/headline.json), reference_convergence_page by
+# rule tolerance_study (not part of `all`).
 
-    ``tolerance_study``: the study's CSV; when it exists and has a row solved like the reference,
-    the headline gains ``reference_convergence`` (the reference's own error) and its display."""
-    path = Path(path)
-    if not path.is_file():
-        return None
-    integrity.verify(path, "headline file")
-    try:
-        headline = json.loads(path.read_text())
-    except ValueError as error:
-        raise ValueError(f"headline file {path} is not valid JSON: {error}") from error
-    if tolerance_study is not None and headline.get("reference_newton"):
-        from .convergence import self_consistency
 
-        headline["reference_convergence"] = self_consistency(tolerance_study, headline["reference_newton"])
-        headline["display"] = headline_display(headline)
-    return headline
+def write_page(page: str, out) -> Path:
+    with atomic_path(out) as tmp:
+        tmp.write_text(page)
+    return Path(out)
+
+
+def _html_page(title: str, sections: Sequence[tuple[str, Sequence[str]]]) -> str:
+    """A standalone HTML page (the tables' style): a title, then each section's heading and
+    paragraphs (HTML, already escaped)."""
+    import html
+
+    from .tables import _HTML_STYLE
+
+    body = [f"<h3>{html.escape(title)}</h3>"]
+    for heading, paragraphs in sections:
+        body.append(f"<h4>{html.escape(heading)}</h4>")
+        body += [f"<p>{p}</p>" if not p.startswith("<ul>") else p for p in paragraphs]
+    return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
+            f"<style>{_HTML_STYLE}\nh4 {{ margin-bottom: 0.3em; }} p, li {{ max-width: 60em; }}</style></head>"
+            "<body>\n" + "\n".join(body) + "\n</body></html>\n")
+
+
+def _plural(n, word: str, plural: str | None = None) -> str:
+    return word if n == 1 else (plural or word + "s")
+
+
+def _own_error_text(convergence: Mapping, *, study: str) -> str:
+    """The reference's own error, from a tolerance-study row (convergence.self_consistency)."""
+    import html
+
+    limit = convergence.get("converged_tolerance")
+    against = f"against a run to {readable_small(limit)}" if limit is not None else "against the converged run"
+    return (f"<b>Its own error</b>, measured by {html.escape(study)} (variant "
+            f"{html.escape(str(convergence['variant']))} {against}): top force within "
+            f"<b>{convergence['top_force_max_pct']:.2f} %</b> of the peak, volumetric strain within "
+            f"<b>{convergence['volumetric_strain_max_pct']:.2f} %</b> of its peak magnitude, Gauss-point stress MAE "
+            f"{convergence['stress_mae_kpa']:.2f} kPa. Errors of FEM–ML below these are below what the reference "
+            "can tell.")
+
+
+def _solver_text(newton: Mapping) -> str:
+    return f"{newton['predictor']} predictor" + (", Anderson mixing" if newton["acceleration"] != "none" else "")
+
+
+def headline_page(h: Mapping) -> str:
+    """The report's headline page (HTML) of a headline as :func:`make_headline` writes it: what
+    ran, how converged the reference is, the machine and the headline numbers, in the strings of
+    :func:`headline_display`. A part the headline lacks (the reference's Newton record, the cost
+    table, an accuracy row, the ablation) is left out or stated as missing."""
+    import html
+
+    e = html.escape
+    d = headline_display(h)
+    dem = h["reference_material"] == "dem"
+    path, ref, ml = e(h["validation_path"]), e(h["reference"]), e(h["surrogate"])
+    points = "RVE" if dem else "material point"
+
+    m = h["mesh_elements"]
+    ran = [f"Read from the reference run of {path}:"]
+    if h["symmetry"] == "quarter":
+        ran.append(f"<b>quarter symmetry</b> (<code>specimen.symmetry: quarter</code>), a mesh of {m[0]} × {m[1]} × "
+                   f"{m[2]} elements with {h['gauss_points_modelled']} of the specimen's {h['gauss_points']} Gauss "
+                   "points (forces reported for the full specimen);")
+    else:
+        ran.append(f"the full specimen, {h['gauss_points_modelled']} Gauss points (no symmetry reduction);")
+    n_eval = h["material_points_evaluated"]
+    if h["uniform_field"]:
+        ran.append(f"<b>uniform field</b> (<code>specimen.uniform_field: true</code>): one material point stands for "
+                   f"all {h['gauss_points_modelled']} Gauss points, so the reference evaluated "
+                   f"<b>{n_eval} {_plural(n_eval, points)}</b>;")
+    else:
+        ran.append(f"the reference evaluated <b>{n_eval} {_plural(n_eval, points)}</b>, one per Gauss point "
+                   "(no uniform-field reduction);")
+    n_ml = h["surrogate_points_evaluated"]
+    ran.append(f"FEM–ML evaluated the surrogate at {n_ml} {_plural(n_ml, 'point')}.")
+    sections = [("What ran", [" ".join(ran)])]
+
+    newton = h.get("reference_newton")
+    if newton:
+        convergence = [f"The reference was solved to a relative residual of {d['reference_tolerance']} (largest "
+                       f"accepted: {d['reference_residual_max']}; {e(_solver_text(newton))})."]
+        if h.get("reference_convergence"):
+            convergence.append(_own_error_text(h["reference_convergence"], study="the tolerance study"))
+        elif dem:
+            # the tolerance study is not part of `all`; the job that writes this page does not
+            # depend on it, so its numbers are on their own page, made with the study
+            convergence.append(
+                "Its own error is measured by the tolerance study, which <code>all</code> does not run: "
+                "<code>snakemake -j2 tolerance_study</code>, then <code>snakemake --report … all tolerance_study"
+                "</code>; its page <i>Reference convergence</i> in this category states it, the study itself is in "
+                "<i>5 Reference</i> (docs/method.md, “How converged is the reference”, has the numbers measured at "
+                "the tiny and default scales).")
+        else:
+            convergence.append("Its own error is not measured by this workflow: the tolerance study measures FEM–DEM "
+                               "runs, and this reference is the analytic model.")
+    else:
+        convergence = ["The reference run does not record its Newton tolerance (a file written before it did)."]
+    sections.append(("Reference convergence", convergence))
+
+    machine = h["machine"]
+    memory = f"{machine['memory_gib']} GiB memory, " if machine.get("memory_gib") is not None else ""
+    sections.append(("Machine", [f"Measured on {machine['cores']} cores of {e(str(machine['cpu']))} "
+                                 f"({memory}{e(str(machine['system']))})."]))
+
+    items = [f"<b>Speedup {d['speedup']}</b> for one answer: {ml} took {d['surrogate_wall_time']}, {ref} "
+             f"{d['reference_wall_time']} (paper: 24.8 h vs 0.2 h, about 125×)."]
+    if d["surrogate_cost"]:
+        cost = (f"<b>Making the surrogate took {d['surrogate_cost']}</b>: "
+                f"{e('; '.join(d['surrogate_cost_items']))}.")
+        n = h.get("break_even_runs")
+        if n is not None:
+            cost += (f" <b>It pays back from {d['break_even_runs']} FEM–ML {_plural(n, 'run')}</b> of {path} on: the "
+                     f"smallest N with N × {d['surrogate_wall_time']} + {d['surrogate_cost']} ≤ N × "
+                     f"{d['reference_wall_time']}.")
+        else:
+            cost += f" <b>It never pays back here</b>: {ml} is not faster than {ref}."
+        if not dem:
+            cost += (" (The reference is the analytic model, not FEM–DEM: these are the costs of a surrogate of "
+                     "that model.)")
+        items.append(cost)
+    else:
+        items.append("The cost of making the surrogate is not in this headline (no surrogate cost table).")
+    if not h.get("surrogate_completed", True):
+        items.append(f"<b>{ml} stopped after load step {h['surrogate_load_steps']} of {h['reference_load_steps']}</b> "
+                     "(Newton did not converge even after cutbacks; its log names the step). The speedup compares "
+                     "time per load step; the errors below cover the steps it reached.")
+    if h.get("top_force_max_rel_pct") is not None:
+        items.append(f"<b>Top-force error {d['top_force_max_rel_pct']}</b> of the peak reference force at worst over "
+                     f"the load steps ({ml}).")
+    if h.get("stress_mae_heldout_kpa") is not None:
+        items.append(f"<b>Held-out stress MAE {d['stress_mae_heldout_kpa']}</b>: mean absolute stress error at the "
+                     "Gauss points held out of training, over all steps and components.")
+    if h.get("ablation_top_force_max_rel_pct") is not None:
+        items.append(f"Without history variables ({e(str(h['ablation']))}): top-force error "
+                     f"{d['ablation_top_force_max_rel_pct']}, held-out stress MAE "
+                     f"{d['ablation_stress_mae_heldout_kpa']}.")
+    sections.append(("Headline numbers", ["<ul>" + "".join(f"<li>{item}</li>" for item in items) + "</ul>"]))
+    return _html_page(f"Headline numbers: {h['surrogate']} against {h['reference']} on {h['validation_path']}",
+                      sections)
+
+
+def reference_convergence_page(convergence: Mapping | None, newton: Mapping, *, study_path: str,
+                               reference_material: str) -> str:
+    """The report's page on the FEM–DEM reference's own error (HTML): the Newton settings FEM–DEM
+    runs of this configuration are solved with (``newton``: tolerance, predictor, acceleration)
+    and the tolerance-study row solved the same way (``convergence``, from
+    ``convergence.self_consistency``; None: no variant of the study was solved so)."""
+    import html
+
+    settings = (f"FEM–DEM runs of this configuration are solved to a relative residual of "
+                f"{readable_small(newton['tolerance'])} ({html.escape(_solver_text(newton))}; <code>newton</code> with "
+                "the overrides of <code>dem.newton</code>).")
+    paragraphs = [settings]
+    if convergence:
+        paragraphs.append(_own_error_text(convergence, study=f"the tolerance study on {study_path}"))
+    else:
+        paragraphs.append("No variant of the tolerance study (<code>tolerance_study.variants</code>) is solved with "
+                          "these settings, so this study does not measure the reference's own error: add such a "
+                          "variant.")
+    if reference_material != "dem":
+        paragraphs.append("This report's reference is the analytic elastoplastic model, not FEM–DEM: these numbers "
+                          "are the error a FEM–DEM reference would carry.")
+    return _html_page("Reference convergence: the FEM–DEM reference's own error",
+                      [("Reference convergence", paragraphs)])
+
+
+def make_reference_convergence(study_csv, out, *, newton: Mapping, study_path: str,
+                               reference_material: str) -> dict | None:
+    """Write :func:`reference_convergence_page` for the tolerance study ``study_csv``; returns the
+    study's row solved with ``newton`` (None if there is none)."""
+    from .convergence import self_consistency
+
+    convergence = self_consistency(study_csv, newton)
+    write_page(reference_convergence_page(convergence, newton, study_path=study_path,
+                                          reference_material=reference_material), out)
+    return convergence
 
 
 # --------------------------------------------------------------------------------------

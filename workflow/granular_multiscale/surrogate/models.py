@@ -194,7 +194,7 @@ class EnsembleMLP(nn.Module):
     The members share the min–max scaling (one training set), so the ensemble is used exactly
     like one ScaledMLP: the stress is the mean of the members' stresses and, since the mean is
     linear, its exact Jacobian is the mean of theirs. Averaging removes most of the error that
-    depends on the seed of one network (docs/surrogate.md measures it on the FEM–ML curves)."""
+    depends on the seed of one network (docs/history.md measures it on the FEM–ML curves)."""
 
     def __init__(self, members: list[ScaledMLP]):
         super().__init__()
