@@ -21,8 +21,12 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCUMENTS = ("README.md", "docs/measured.md")
 BLOCK = re.compile(r"(<!-- measured: (\S+) (\w+) -->\n)(.*?)(<!-- end measured -->)", re.S)
+
+
+def documents() -> list[str]:
+    """The README and every page of docs/ (the ones without a block are left alone)."""
+    return ["README.md", *sorted(str(path.relative_to(ROOT)) for path in (ROOT / "docs").glob("*.md"))]
 
 
 def rows_of(record: dict, table: str) -> list[dict]:
@@ -56,6 +60,42 @@ def adaptive_rows(record: dict) -> list[dict]:
     return rows
 
 
+#: the paper's mesh (5 × 5 × 10 hexahedra, 8 Gauss points each) and RVE size
+PAPER_RVES, PAPER_SPHERES = 2000, 1000
+
+
+def dem_work(record: dict) -> dict[str, dict]:
+    """The DEM work of every DEM run of the record; a record made before bench_all kept it has the
+    particle-steps of the triaxial FEM–DEM runs only (and no CPU time)."""
+    f = record["figures"]
+    if "dem_work" in f:
+        return f["dem_work"]
+    return {f"fem_dem/{path}": {"particle_steps": steps} for path, steps in f.get("dem_particle_steps", {}).items()}
+
+
+def dem_cpu_per_particle_step(record: dict) -> float | None:
+    """CPU seconds per DEM particle-step over every DEM run of the record (None: not recorded)."""
+    work = [w for w in dem_work(record).values() if "cpu_s" in w]
+    return sum(w["cpu_s"] for w in work) / sum(w["particle_steps"] for w in work) if work else None
+
+
+def dem_cost_rows(record: dict) -> list[str]:
+    """The DEM cost per particle-step and, at that cost, FEM–DEM of Path2 at the paper scale."""
+    cpu_per_step = dem_cpu_per_particle_step(record)
+    if cpu_per_step is None:
+        return []
+    h, cores, label = record["figures"]["headline"], record["machine"]["cores"], run_label(record)
+    per_sphere = dem_work(record)["fem_dem/path2"]["particle_steps"] / (h["material_points_evaluated"] * h["n_spheres"])
+    paper_steps = per_sphere * PAPER_RVES * PAPER_SPHERES
+    hours = paper_steps * cpu_per_step / 3600
+    return [f"| DEM cost | {1e6 * cpu_per_step:.2f} µs of CPU per particle-step (all FEM–DEM and RVE-path runs) | "
+            f"{label}, the run files |",
+            f"| FEM–DEM of Path2 at the paper scale (2000 RVEs × 1000 spheres), estimated | "
+            f"{paper_steps:.1e} particle-steps, about {hours:.0f} CPU-hours ({hours / cores:.0f} h on {cores} cores; "
+            f"the paper needed 24.8 h) | {label}: the default Path2 run's particle-steps per RVE sphere, scaled, "
+            f"at that DEM cost |"]
+
+
 def render_headline(record: dict) -> str:
     """The rows of the README's headline table measured in one `all` run."""
     f, h = record["figures"], record["figures"]["headline"]
@@ -65,6 +105,7 @@ def render_headline(record: dict) -> str:
     report = f"report {f['report_s']:.0f} s" if f.get("report_s") is not None else ""
     total = sum(v for v in (f["all_wall_s"], f.get("setup_s"), f.get("report_s")) if v is not None)
     note = f", {f['note']}" if f.get("note") else ""
+    work = dem_work(record)
     lines = [
         "| quantity | value | from |",
         "| --- | --- | --- |",
@@ -72,8 +113,9 @@ def render_headline(record: dict) -> str:
         f"{total / 60:.0f} min in all) | fresh clone, {label}, {machine['cores']} cores{note} |",
         f"| FEM–DEM, default scale ({h['gauss_points']} RVEs × {h['n_spheres']} spheres, 2 workers) | "
         f"Path1 {rules['fem_dem/path1']:.0f} s, Path2 {rules['fem_dem/path2']:.0f} s | {label}, its `benchmarks/` files |",
-        f"| DEM particle-steps, default scale | Path1 {f['dem_particle_steps']['path1']:.2e}, "
-        f"Path2 {f['dem_particle_steps']['path2']:.2e} | {label}, the run files |",
+        f"| DEM particle-steps, default scale | Path1 {work['fem_dem/path1']['particle_steps']:.2e}, "
+        f"Path2 {work['fem_dem/path2']['particle_steps']:.2e} | {label}, the run files |",
+        *dem_cost_rows(record),
         f"| FEM–ML error on Path2 (largest top-force error over the path, % of the peak) | "
         f"**{h['top_force_max_rel_pct']:.2f} %** (no history variables: {h['ablation_top_force_max_rel_pct']:.2f} %) | "
         f"the default networks as trained in {label} |",
@@ -205,7 +247,62 @@ def render_problems(record: dict) -> str:
     return "\n".join(lines)
 
 
-RENDERERS = {"headline": render_headline, "rules": render_rules, "fem_ml": render_fem_ml, "problems": render_problems}
+def render_problem_references(record: dict) -> str:
+    """The RVE's friction and dilatancy, the biaxial band and the footing's pressure in one run."""
+    label, f = run_label(record), record["figures"]
+    angles = {row["test"]: row for row in rows_of(record, "rve_angles.csv")}
+    triaxial, plane = angles["triaxial compression"], angles["plane strain compression"]
+    band = pick(rows_of(record, "biaxial_bands.csv"), run="biaxial")
+    footing = pick(rows_of(record, "footing.csv"), run="footing")
+    steps = {key.split("/")[0]: w["particle_steps"] for key, w in dem_work(record).items()
+             if key.split("/")[0] in ("biaxial", "footing")}
+    lines = [f"{label} (`tables/rve_angles.csv`, `tables/biaxial_bands.csv`, `tables/footing.csv`):", "",
+             "| quantity | value |", "| --- | --- |",
+             f"| the RVE's peak friction angle, triaxial / plane strain | {triaxial['peak friction angle φ (deg)']:.1f}° / "
+             f"{plane['peak friction angle φ (deg)']:.1f}° (mobilised at {plane['final axial strain (%)']:.0f} %: "
+             f"{triaxial['mobilised friction at the end (deg)']:.1f}° / {plane['mobilised friction at the end (deg)']:.1f}°) |",
+             f"| plane strain: Roscoe / Coulomb angle | {plane['Roscoe 45+ψ/2 (deg)']:.1f}° / "
+             f"{plane['Coulomb 45+φ/2 (deg)']:.1f}° |",
+             f"| biaxial test, {band['mesh'].replace('x', ' × ')} elements, {band['Gauss points']} RVEs | force peak "
+             f"{band['peak force (kN/m)']:.1f} kN/m at {band['axial strain at peak (%)']:.2f} %; band onset "
+             f"{band['band onset: axial strain (%)']:.2f} %; at the end the band carries "
+             f"{band['band / mean shear strain at the end']:.2f} × the mean shear strain; "
+             f"{band['inclination to σ3 (deg)']:.1f}° to σ3; width {band['width (mm)']:.1f} mm |",
+             f"| strip footing, {footing['Gauss points']} RVEs | {footing['largest pressure (kPa)']:.0f} kPa = "
+             f"{footing['largest pressure / q0']:.1f} q0 at s/B = {footing['settlement at the end s/B (%)']:.0f} %, "
+             f"{footing['pressure gain over the last 20 % of the settlement (%)']:.0f} % gained over the last fifth; "
+             f"{footing['largest pressure / (q0·N_q)']:.2f} of q0·N_q with the peak φ; p/p0 from "
+             f"{footing['mean stress p/p0: smallest']:.2f} to {footing['mean stress p/p0: largest']:.2f} |"]
+    if steps:
+        lines.append("| FEM–DEM particle-steps | " + ", ".join(f"{name} {n:.2e}" for name, n in steps.items()) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def render_rve_paths(record: dict) -> str:
+    """What each RVE-path set of one run holds and what it cost."""
+    f, label = record["figures"], run_label(record)
+    if "rve_paths" not in f:  # a record made before bench_all described the sets: their wall times only
+        return (f"{label}, the default training sources (`rve_paths.sets`): "
+                + ", ".join(f"`{key.split('/')[1]}` {seconds:.0f} s" for key, seconds in f["rules_wall_s"].items()
+                            if key.startswith("rve_paths/")) + " (wall, 2 workers).\n")
+    reference = f["dem_work"]["fem_dem/path1"]["particle_steps"]
+    lines = [f"{label}, the default training sources (`rve_paths.sets`):", "",
+             "| set | trajectories | evaluations | particle-steps | wall | largest axial / lateral strain | lost contact |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    total = 0
+    for name, s in f["rve_paths"].items():
+        work = f["dem_work"][f"rve_paths/{name}"]
+        total += work["particle_steps"]
+        families = ", ".join(f"{n} {family.replace('_', ' ')}" for family, n in s["families"].items())
+        lines.append(f"| `{name}` | {families} × {s['steps']} steps | {s['evaluations']} | {work['particle_steps']:.2e} | "
+                     f"{f['rules_wall_s'].get(f'rve_paths/{name}', work['wall_s']):.0f} s | "
+                     f"{s['largest_axial_strain_pct']:.1f} % / {s['largest_lateral_strain_pct']:.1f} % | {s['lost_contact']} |")
+    lines += ["", f"Together {total:.2e} particle-steps, {100 * total / reference:.0f} % of FEM–DEM Path1's."]
+    return "\n".join(lines) + "\n"
+
+
+RENDERERS = {"headline": render_headline, "rules": render_rules, "fem_ml": render_fem_ml, "problems": render_problems,
+             "problem_references": render_problem_references, "rve_paths": render_rve_paths}
 
 
 def rewrite(text: str, document: str) -> str:
@@ -227,7 +324,7 @@ def main(argv=None) -> int:
     parser.add_argument("--check", action="store_true", help="change nothing; exit 1 if a block is stale")
     args = parser.parse_args(argv)
     stale = []
-    for document in DOCUMENTS:
+    for document in documents():
         path = ROOT / document
         text = path.read_text()
         if not BLOCK.search(text):

@@ -81,3 +81,41 @@ def test_adaptive_variants_of_the_command_line():
     assert common.variant_name({"threshold": 0.02, "correction": "kernel"}) == "correction=kernel,threshold=0.02"
     with pytest.raises(SystemExit, match="'kernel' is not key=value"):
         common.parse_variant("correction=none,kernel")
+
+
+def with_dem_work(record: dict) -> dict:
+    """The record with the DEM work and RVE-path sets that bench_all records (made up here: the
+    renderers' arithmetic is what is tested)."""
+    record = json.loads(json.dumps(record))
+    record["figures"]["dem_work"] = {
+        "fem_dem/path1": {"particle_steps": 1_000_000_000, "cpu_s": 900.0, "wall_s": 500.0},
+        "fem_dem/path2": {"particle_steps": 800_000_000, "cpu_s": 700.0, "wall_s": 400.0},
+        "rve_paths/designed": {"particle_steps": 400_000_000, "cpu_s": 300.0, "wall_s": 200.0}}
+    record["figures"]["rve_paths"] = {"designed": {
+        "trajectories": 96, "steps": 80, "evaluations": 7680, "lost_contact": 0, "families": {"triaxial": 96},
+        "largest_axial_strain_pct": 5.0, "largest_lateral_strain_pct": 3.5}}
+    return record
+
+
+def test_the_dem_cost_and_the_rve_path_sets_come_from_the_run_files():
+    record = with_dem_work(json.loads(RECORD.read_text()))
+    headline = update_docs.render_headline(record)
+    assert "0.86 µs of CPU per particle-step" in headline  # 1900 s / 2.2e9
+    h = record["figures"]["headline"]
+    paper = 800_000_000 / (h["material_points_evaluated"] * h["n_spheres"]) * 2000 * 1000
+    assert f"{paper:.1e} particle-steps, about {paper * 1900 / 2.2e9 / 3600:.0f} CPU-hours" in headline
+    sets = update_docs.render_rve_paths(record)
+    assert "| `designed` | 96 triaxial × 80 steps | 7680 | 4.00e+08 |" in sets
+    assert "Together 4.00e+08 particle-steps, 40 % of FEM–DEM Path1's." in sets
+    old = json.loads(RECORD.read_text())  # a record without them renders without those rows
+    if "dem_work" not in old["figures"]:
+        assert "µs of CPU" not in update_docs.render_headline(old)
+
+
+def test_the_problem_references_come_from_the_run_tables():
+    record = json.loads(RECORD.read_text())
+    block = update_docs.render_problem_references(record)
+    band = update_docs.pick(update_docs.rows_of(record, "biaxial_bands.csv"), run="biaxial")
+    footing = update_docs.pick(update_docs.rows_of(record, "footing.csv"), run="footing")
+    assert f"{band['inclination to σ3 (deg)']:.1f}° to σ3" in block
+    assert f"{footing['largest pressure (kPa)']:.0f} kPa" in block
