@@ -20,8 +20,8 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "workflow" / "granular_multiscale"
-SHARED = ("atomic", "checkpoint", "config", "data", "history", "integrity", "output_lock", "paths", "runlog",
-          "tensors", "vtk_order")
+SHARED = ("atomic", "checkpoint", "config", "data", "history", "integrity", "novelty", "output_lock", "paths",
+          "runlog", "tensors", "vtk_order")
 # layer -> the layers (besides the shared modules) its modules may import
 ALLOWED = {
     "materials": (),

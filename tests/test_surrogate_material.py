@@ -409,3 +409,37 @@ def test_fem_ml_run_file_holds_the_autodiff_tangent_whole(models, tmp_path):
     assert lower_lost > 1e-3 * np.abs(full).max()  # the 21 upper entries alone would not give it back
     np.testing.assert_allclose(back.tangent.values, tangent_to_upper(0.5 * (full + np.swapaxes(full, -1, -2))),
                                rtol=1e-15, atol=0)
+
+
+def test_an_unseen_combination_inside_the_box_is_off_the_training_data(data, tmp_path, caplog):
+    """Triaxial training data: the lateral strain is largest where the axial compression is. A state
+    with that lateral strain and no axial strain is inside every feature's training range (the box
+    lets it pass) but far from every training state: off_training_points counts it, with a warning,
+    and the model file carries the training sample it is measured against. (Networks without history
+    variables: their inputs are the strains alone, so a training strain is a training state.)"""
+    from granular_multiscale.novelty import sample_states
+    from granular_multiscale.surrogate.dataset import features
+
+    model = untrained(data, "sigma", use_history=False)
+    model.training_states = sample_states(features(data[0], ()), 20_000, seed=0)
+    model.save(tmp_path / "s.pt")
+    sigma = SurrogateModel.load(tmp_path / "s.pt")
+    np.testing.assert_array_equal(sigma.training_states, model.training_states)
+    mat = SurrogateMaterial(2, sigma, tangent="autodiff", logger=logging.getLogger("novel"))
+    strain = data[0]["strain"].values.reshape(-1, 6)
+    seen = strain[np.argmin(strain[:, 2])]  # the most compressed training state, its lateral strain largest
+    unseen = seen.copy()
+    unseen[2] = 0.0  # the same lateral strain without the axial compression
+    with caplog.at_level(logging.WARNING, logger="novel"):
+        mat.evaluate(np.stack([seen, unseen]))
+        mat.commit()
+    info = mat.step_info()
+    assert info["out_of_range_points"] == 0  # inside the box
+    assert info["off_training_points"] == 1  # the unseen combination only
+    assert "1 of 2 Gauss points off the training data" in caplog.text and "first points [1]" in caplog.text
+    without_sample = untrained(data, "sigma", use_history=False)
+    assert without_sample.training_states is None
+    box_only = SurrogateMaterial(2, without_sample, tangent="autodiff")
+    box_only.evaluate(np.stack([seen, unseen]))
+    box_only.commit()
+    assert "off_training_points" not in box_only.step_info()  # a model file without the sample: the box alone

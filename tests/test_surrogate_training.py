@@ -82,6 +82,8 @@ def test_running_maxima_train_and_replay_like_the_dataset(data, tmp_path):
     model.save(tmp_path / "s.pt")
     back = SurrogateModel.load(tmp_path / "s.pt")
     assert back.feature_names == STRAIN_FEATURES + chosen
+    # the model keeps its training inputs (all of them: fewer than it keeps) for the distance to them
+    np.testing.assert_array_equal(back.training_states, features(data[0], chosen))
     heldout = data[1]
     strain = heldout.strain.transpose("step", "gp", "comp").values
     assert np.all(strain[0] == 0.0)  # the material's fresh state is the dataset's step 0

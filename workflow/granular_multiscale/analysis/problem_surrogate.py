@@ -42,6 +42,7 @@ import xarray as xr  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 
 from ..history import HIST, history_from_sequence  # noqa: E402
+from ..novelty import NEIGHBOURS, NOVELTY_QUANTILE, TrainingStates  # noqa: E402,F401  (the scripts' and tests' names)
 from . import quantities as qty  # noqa: E402
 from .bands import band_metrics  # noqa: E402
 from .calibration import spearman  # noqa: E402
@@ -264,10 +265,6 @@ def state_ranges(runs: Mapping[str, xr.Dataset], confining_pressure: float,
 
 
 # ------------------------------------------------------------------------------ off the training data
-NEIGHBOURS = 5
-#: a state is off the training data when its k-th neighbour is farther than this quantile of the
-#: training states' own (leave-one-out) k-th neighbour distances
-NOVELTY_QUANTILE = 0.99
 
 
 def run_features(run: xr.Dataset, history: tuple[str, ...]) -> np.ndarray:
@@ -280,29 +277,3 @@ def run_features(run: xr.Dataset, history: tuple[str, ...]) -> np.ndarray:
     return np.concatenate([strain, values], axis=-1)
 
 
-class TrainingStates:
-    """The training samples' inputs, each scaled by its training range, and the distance to the k-th
-    nearest training state that counts as inside the data (:data:`NOVELTY_QUANTILE` of the training
-    states' own leave-one-out distances). A box of per-feature ranges misses a combination of
-    features that no training state has; a distance to the training states does not."""
-
-    def __init__(self, train_features: np.ndarray, k: int = NEIGHBOURS):
-        from scipy.spatial import cKDTree
-
-        x = np.asarray(train_features, dtype=float)
-        self.lo = x.min(axis=0)
-        self.span = np.where(np.ptp(x, axis=0) > 0, np.ptp(x, axis=0), 1.0)
-        self.k = int(k)
-        self.tree = cKDTree((x - self.lo) / self.span)
-        own, _ = self.tree.query(self.tree.data, k=self.k + 1)  # the first neighbour is the state itself
-        self.radius = float(np.quantile(own[:, -1], NOVELTY_QUANTILE))
-
-    def distance(self, features: np.ndarray) -> np.ndarray:
-        """[...] the distance of each state [..., f] to its k-th nearest training state (training range units)."""
-        shape = features.shape[:-1]
-        d, _ = self.tree.query(((features - self.lo) / self.span).reshape(-1, features.shape[-1]), k=self.k)
-        return d[:, -1].reshape(shape)
-
-    def off(self, features: np.ndarray) -> np.ndarray:
-        """[...] True where a state is farther from the training states than :attr:`radius`."""
-        return self.distance(features) > self.radius

@@ -69,7 +69,7 @@ from .fem_ml import commits_of_steps, run_keeping_partial, spread_variables, sur
 from .problems import dem_packings, problem_and_path
 
 # per-step values of the set's commit log that are not sums over the commits of a load step
-LAST_OF_STEP = ("dem_points", "out_of_range_points", "out_of_range_excess", "correction")
+LAST_OF_STEP = ("dem_points", "out_of_range_points", "out_of_range_excess", "off_training_points", "correction")
 MAX_OF_STEP = ("dem_steps_max",)
 #: what a file of :func:`dem_trajectories` holds (the ``trajectories`` output)
 DEM_TRAJECTORY_VARIABLES = ("strain", "stress", "tangent", "history", "valid", "promoted_at")

@@ -38,6 +38,14 @@ symmetric mesh a shear strain can be zero to round-off at every training point (
 1e-17), so that its own span would flag every later roundoff-sized deviation as far out.
 Each history variable has its own range.
 
+The box misses a state whose features are each inside their range in a combination no training
+state has (a large shear with little dilation, say). A model file that keeps a sample of its
+training inputs (``SurrogateModel.training_states``, written by training) also gives the distance
+of each committed state to its nearest training states (``novelty.TrainingStates``): a point
+farther than the training states' own 99th percentile is off the training data, counted per
+step as ``off_training_points`` in the run file, with a warning whenever more points are off
+than in any earlier step.
+
 Ensemble spread (``surrogate.ensemble_size`` K): each evaluation keeps the K members' NNσ
 (their mean is the stress; no extra pass), and at every commit
 :attr:`SurrogateMaterial.stress_spread` records, per committed state and point, the standard
@@ -61,6 +69,7 @@ import torch
 
 from ..history import HIST, accumulate, history_jacobian_torch, history_variables, running_peak, strain_norms
 from ..materials.base import MaterialPointSet
+from ..novelty import NEIGHBOURS, NOVELTY_QUANTILE, TrainingStates
 from ..tensors import ENGINEERING_FACTOR, UPPER, voigt_to_tensor
 from .dataset import STRAIN_FEATURES
 from .models import SurrogateModel, trial_features
@@ -137,6 +146,10 @@ class SurrogateMaterial(MaterialPointSet):
         self._eng = torch.as_tensor(ENGINEERING_FACTOR, dtype=self.dtype)
         self._sym = torch.as_tensor(_SYMMETRIC_INDEX.ravel())
         self._range_bounds(out_of_range_tolerance)
+        states = sigma_model.training_states
+        self._training_states = (TrainingStates(states, radius=sigma_model.training_radius)
+                                 if states is not None and len(states) > NEIGHBOURS else None)
+        self._off_training_most = 0  # the most points off the training data in one committed state yet
         self.anchor_initial_state = bool(anchor_initial_state)
         self._sigma_offset = self._offset(self.sigma_model)
         self._tangent_offset = self._offset(self.tangent_model) if self.tangent_model else None
@@ -264,6 +277,8 @@ class SurrogateMaterial(MaterialPointSet):
             "out_of_range_points": float(points.size),
             "out_of_range_excess": float(excess.max()) if excess.size else 0.0,
         }
+        if self._training_states is not None:
+            self._note_off_training(self._training_states.off(self._trial_features))
         if points.size:
             features = [self.feature_names[j] for j in np.flatnonzero(flagged.any(axis=0))]
             self.logger.warning(
@@ -273,6 +288,19 @@ class SurrogateMaterial(MaterialPointSet):
                 self._step_info["out_of_range_excess"], points[:5].tolist(),
             )
         self._trial = None
+
+    def _note_off_training(self, off: np.ndarray) -> None:
+        """Count the committed points off the training data (step_info ``off_training_points``); warn
+        when more are off than in any earlier committed state (not at every step: in a shear band the
+        same points stay off for the rest of the run)."""
+        self._step_info["off_training_points"] = float(off.sum())
+        if off.sum() > self._off_training_most:
+            self._off_training_most = int(off.sum())
+            self.logger.warning(
+                "%s: committed state %d has %d of %d Gauss points off the training data (farther from their "
+                "%d nearest training states than %.0f %% of the training states are; first points %s)",
+                self.method, self._commits, off.sum(), self.n_points, self._training_states.k,
+                100 * NOVELTY_QUANTILE, np.flatnonzero(off)[:5].tolist())
 
     def _member_spread(self, members: torch.Tensor) -> np.ndarray:
         """[K, n, 6] members' NNσ -> [n, 6] std over the anchored members (zeros for one network)."""

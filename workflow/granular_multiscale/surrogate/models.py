@@ -237,6 +237,17 @@ class EnsembleMLP(nn.Module):
         return values.mean(dim=0), torch.stack(slopes).mean(dim=0), values
 
 
+def _training_states(path: Path, states, n_features: int) -> np.ndarray | None:
+    """The training-input sample of a model file as an array; ModelFileError when it does not fit."""
+    if states is None:
+        return None
+    states = states.numpy() if isinstance(states, torch.Tensor) else np.asarray(states)
+    if states.ndim != 2 or states.shape[1] != n_features or not np.isfinite(states).all():
+        raise ModelFileError(f"{path}: training_states of shape {states.shape} do not fit its {n_features} "
+                             "inputs, or are not finite")
+    return states.astype(np.float64)
+
+
 @dataclass
 class SurrogateModel:
     network: ScaledMLP | EnsembleMLP  # one network, or an ensemble (surrogate.ensemble_size)
@@ -248,6 +259,11 @@ class SurrogateModel:
     training: dict = field(default_factory=dict)
     #: mean features and targets of the fresh state (step 0) of the training points, see `initial_offset`
     initial_state: dict = field(default_factory=dict)
+    #: [n, features] a sample of the training inputs (unscaled): what the material set measures a
+    #: state's distance to (``novelty``); None in a model file written without it
+    training_states: np.ndarray | None = None
+    #: the distance beyond which a state is off those training states (``novelty.TrainingStates.radius``)
+    training_radius: float | None = None
 
     @classmethod
     def create(cls, kind: str, history, scaling: dict, settings: dict, config: dict | None = None) -> "SurrogateModel":
@@ -333,6 +349,9 @@ class SurrogateModel:
             "training": json.dumps(self.training),
             "initial_state": json.dumps(self.initial_state),
         }
+        if self.training_states is not None:
+            payload["training_states"] = torch.as_tensor(np.asarray(self.training_states, dtype=np.float64))
+            payload["training_radius"] = self.training_radius
         with atomic_path(path) as tmp:
             torch.save(payload, tmp)
 
@@ -372,6 +391,8 @@ class SurrogateModel:
             json.loads(payload["config"]),
             json.loads(payload["training"]),
             json.loads(payload.get("initial_state", "{}")),
+            _training_states(path, payload.get("training_states"), len(names)),
+            payload.get("training_radius"),
         )
 
 

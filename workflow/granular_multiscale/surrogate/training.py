@@ -26,11 +26,15 @@ from torch.func import jvp
 
 from ..atomic import atomic_path
 from ..history import accumulated_from_sequence, peak_from_sequence
+from ..novelty import TrainingStates, sample_states
 from ..tensors import ENGINEERING_FACTOR, tangent_from_upper
 from .dataset import features, history_selection, sample_mask, scaling, target_names, targets
 from .models import EnsembleMLP, ScaledMLP, SurrogateModel, trial_features
 
 _KIND_INDEX = {"sigma": 0, "tangent": 1}
+#: training inputs a model file keeps for the material's distance to the training data: enough
+#: for a 5-nearest-neighbour radius, small beside the weights (20 000 × 11 float64 = 1.8 MB)
+TRAINING_STATES_KEPT = 20_000
 
 
 class TrainingError(RuntimeError):
@@ -185,6 +189,8 @@ def train(
                                       for x, y in ((x_tr, y_tr), (x_ho, y_ho)))
     mae = component_mae(model, train_ds, heldout_ds)
     model.initial_state = initial_state(train_ds, kind, history)
+    model.training_states = sample_states(features(train_ds, history), TRAINING_STATES_KEPT, seeds[0])
+    model.training_radius = TrainingStates(model.training_states).radius
     model.training = {
         "seed": seeds[0],
         "member_seeds": seeds,
