@@ -254,3 +254,36 @@ def test_roundoff_columns_are_constant_in_the_scaling():
     x = torch.tensor([[0.0, 0.0, -0.01, 0.0, 0.0, 1e-12, 0.01, 0.01, 0.0]])
     assert float(model.network.scale_x(x)[0, 5].abs()) < 1e-9
     np.testing.assert_allclose(model.network.y_scale.numpy(), [1e6, 1e6, 1e6, 1e4, 1e4, 1.0], rtol=1e-6)
+
+
+def test_bootstrap_rows_are_whole_trajectories_drawn_with_replacement():
+    trajectories = np.repeat([0, 1, 2, 3, 4], [3, 1, 2, 2, 1])  # samples of five trajectories of unequal length
+    from granular_multiscale.surrogate.training import bootstrap_rows
+
+    rows = bootstrap_rows(trajectories, seed=7)
+    np.testing.assert_array_equal(rows, bootstrap_rows(trajectories, seed=7))  # seeded
+    drawn = np.random.default_rng(7).choice(5, size=5, replace=True)
+    expected = np.concatenate([np.flatnonzero(trajectories == t) for t in np.sort(drawn)])
+    np.testing.assert_array_equal(np.sort(rows), np.sort(expected))  # every sample of each drawn trajectory, once per draw
+    assert any(not np.array_equal(rows, bootstrap_rows(trajectories, seed=s)) for s in range(8, 12))
+
+
+def test_ensemble_members_on_bootstrap_samples_of_trajectories(data):
+    """ensemble_resampling: trajectories: member k is fitted to its own bootstrap sample of the
+    training Gauss points, so even member 0 differs from the single network of its seed; the
+    choice is recorded in the model; an unknown choice is refused naming the key."""
+    from granular_multiscale.surrogate.dataset import sample_trajectories
+
+    settings = dict(FAST, ensemble_size=2)
+    seeds_only, _, _ = train(*data, "sigma", settings, seed=3)
+    bagged, _, _ = train(*data, "sigma", dict(settings, ensemble_resampling="trajectories"), seed=3)
+    again, _, _ = train(*data, "sigma", dict(settings, ensemble_resampling="trajectories"), seed=3)
+    assert not torch.equal(seeds_only.members[0].net[0].weight, bagged.members[0].net[0].weight)
+    for (name, pa), pb in zip(bagged.network.state_dict().items(), again.network.state_dict().values()):
+        assert torch.equal(pa, pb), name  # deterministic
+    assert bagged.training["ensemble_resampling"] == "trajectories"
+    assert seeds_only.training["ensemble_resampling"] == "none"
+    trajectories = sample_trajectories(data[0])
+    assert trajectories.size == features(data[0]).shape[0] and set(trajectories) == set(range(data[0].sizes["gp"]))
+    with pytest.raises(TrainingError, match="surrogate.ensemble_resampling"):
+        train(*data, "sigma", dict(settings, ensemble_resampling="points"), seed=0)

@@ -26,8 +26,8 @@ NETWORKS = {
 # the keys of `surrogate` that change a trained network (only these re-run the training rules)
 TRAINING_KEYS = [
     "hidden_layers", "hidden_units", "activation", "batch_size", "learning_rate", "epochs", "ensemble_size",
-    "lr_schedule", "final_learning_rate", "jacobian_loss_weight", "loss", "log_every", "history_variables",
-    "device", "torch_threads",
+    "ensemble_resampling", "lr_schedule", "final_learning_rate", "jacobian_loss_weight", "loss", "log_every",
+    "history_variables", "device", "torch_threads",
 ]
 # the dem settings that say where a run is computed, not what it computes: changing them reruns nothing
 WHERE_DEM_RUNS = ("executor", "n_workers", "dask_scheduler")

@@ -400,6 +400,13 @@ def _held(ds: xr.Dataset, chosen) -> tuple[str, ...]:
     return tuple(chosen)
 
 
+def sample_trajectories(ds: xr.Dataset) -> np.ndarray:
+    """[samples] the trajectory of each sample (its position along ``gp``: a Gauss point of a
+    reference run, or an RVE-path trajectory), samples ordered as :func:`features` orders them."""
+    n_steps, n_gp = ds.sizes["step"], ds.sizes["gp"]
+    return np.broadcast_to(np.arange(n_gp), (n_steps, n_gp)).reshape(-1)[sample_mask(ds)]
+
+
 def features(ds: xr.Dataset, history=True) -> np.ndarray:
     """[samples, 6 + n_history] raw feature matrix, samples ordered step-major, the valid ones only
     (see history_selection, sample_mask)."""

@@ -28,13 +28,16 @@ from ..atomic import atomic_path
 from ..history import accumulated_from_sequence, peak_from_sequence
 from ..novelty import TrainingStates, sample_states
 from ..tensors import ENGINEERING_FACTOR, tangent_from_upper
-from .dataset import features, history_selection, sample_mask, scaling, target_names, targets
+from .dataset import features, history_selection, sample_mask, sample_trajectories, scaling, target_names, targets
 from .models import EnsembleMLP, ScaledMLP, SurrogateModel, trial_features
 
 _KIND_INDEX = {"sigma": 0, "tangent": 1}
 #: training inputs a model file keeps for the material's distance to the training data: enough
 #: for a 5-nearest-neighbour radius, small beside the weights (20 000 × 11 float64 = 1.8 MB)
 TRAINING_STATES_KEPT = 20_000
+#: surrogate.ensemble_resampling: each member on all the data (none) or on its own bootstrap
+#: sample of the training trajectories
+RESAMPLING = ("none", "trajectories")
 
 
 class TrainingError(RuntimeError):
@@ -149,6 +152,10 @@ def train(
         raise TrainingError(f"config key 'surrogate.ensemble_size' must be >= 1, got {n_members}")
     history = history_selection(settings.get("history_variables", True)) if use_history else ()
     seeds = [model_seed(seed, kind, use_history, member) for member in range(n_members)]
+    resampling = settings.get("ensemble_resampling", "none")
+    if resampling not in RESAMPLING:
+        raise TrainingError(f"config key 'surrogate.ensemble_resampling' must be one of {RESAMPLING}, got {resampling!r}")
+    trajectories = sample_trajectories(train_ds) if resampling == "trajectories" else None
 
     torch.manual_seed(seeds[0])
     model = SurrogateModel.create(kind, history, scaling(train_ds, kind, history), settings, config)
@@ -178,7 +185,8 @@ def train(
             torch.manual_seed(member_seed)
             net = ScaledMLP(**model.architecture, **first.exact_scaling).to(device)
         label = name if n_members == 1 else f"{name} member {member + 1}/{n_members}"
-        rows = _fit_network(net, fit, settings, member_seed, label, logger)
+        member_rows = None if trajectories is None else bootstrap_rows(trajectories, member_seed)
+        rows = _fit_network(net, fit, settings, member_seed, label, logger, member_rows)
         members.append(net.cpu())
         losses.append(pd.DataFrame(rows, columns=["epoch", "train_loss", "heldout_loss", "elapsed_s"]).assign(member=member))
 
@@ -194,6 +202,7 @@ def train(
     model.training = {
         "seed": seeds[0],
         "member_seeds": seeds,
+        "ensemble_resampling": resampling,
         "epochs": fit.epochs,
         "final_train_loss": final_train,
         "final_heldout_loss": final_heldout,
@@ -205,17 +214,33 @@ def train(
     return model, pd.concat(losses, ignore_index=True), mae
 
 
-def _fit_network(net, fit: _Fit, settings: dict, rng_seed: int, name: str, logger: logging.Logger) -> list[tuple]:
-    """Adam over mini-batches from a generator seeded with rng_seed; rows (epoch, train loss, held-out loss, s)."""
+def bootstrap_rows(trajectories: np.ndarray, seed: int) -> np.ndarray:
+    """The training rows of one bootstrap sample of trajectories: as many trajectories as there are,
+    drawn with replacement (seeded), each drawn one contributing all its samples once per draw.
+    Members fitted to different samples disagree where the data are thin (a trajectory's
+    neighbourhood that one member never saw), not only where their seeds lead them apart."""
+    ids = np.unique(trajectories)
+    drawn = np.random.default_rng(seed).choice(ids, size=ids.size, replace=True)
+    counts = np.bincount(np.searchsorted(ids, drawn), minlength=ids.size)
+    per_row = counts[np.searchsorted(ids, trajectories)]
+    return np.repeat(np.arange(trajectories.size), per_row)
+
+
+def _fit_network(net, fit: _Fit, settings: dict, rng_seed: int, name: str, logger: logging.Logger,
+                 member_rows: np.ndarray | None = None) -> list[tuple]:
+    """Adam over mini-batches from a generator seeded with rng_seed; rows (epoch, train loss, held-out loss, s).
+    `member_rows`: the training rows this network is fitted to (a bootstrap sample, rows repeated);
+    all of them by default. The train loss is reported over all training rows either way."""
     optimiser = torch.optim.Adam(net.parameters(), lr=float(settings["learning_rate"]))
     scheduler = _scheduler(optimiser, settings, fit.epochs)
     generator = torch.Generator().manual_seed(rng_seed)
-    n = fit.x_tr.shape[0]
+    pool = (torch.arange(fit.x_tr.shape[0]) if member_rows is None else torch.as_tensor(member_rows)).to(fit.x_tr.device)
+    n = pool.shape[0]
     rows = []
     t0 = time.perf_counter()
     for epoch in range(1, fit.epochs + 1):
         net.train()
-        order = torch.randperm(n, generator=generator).to(fit.x_tr.device)
+        order = pool[torch.randperm(n, generator=generator).to(fit.x_tr.device)]
         for start in range(0, n, fit.batch_size):
             idx = order[start : start + fit.batch_size]
             if fit.jac is None:
