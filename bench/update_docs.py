@@ -301,8 +301,22 @@ def render_rve_paths(record: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def render_ensemble_resampling(record: dict) -> str:
+    """Spread against error per ensemble resampling and training seed (bench_ensemble_resampling)."""
+    f = record["figures"]
+    lines = [f"{record['date'].split()[0]}, commit {record['commit'][:7]}, {f['test_points']} test points:", "",
+             "| resampling | seed | ρ(spread, error), median over steps | steps with ρ ≥ 0.5 | error / spread, median "
+             "| error > 2 × spread | mean ‖σ − σ_ref‖ (kPa) |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    for r in f["rows"]:
+        lines.append(f"| `{r['resampling']}` | {r['seed']} | {r['spearman_median']:.2f} | "
+                     f"{100 * r['spearman_steps_above_0.5']:.0f} % | {r['error_over_spread_median']:.2f} | "
+                     f"{100 * r['share_error_above_twice_spread']:.0f} % | {r['stress_mae_kpa']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
 RENDERERS = {"headline": render_headline, "rules": render_rules, "fem_ml": render_fem_ml, "problems": render_problems,
-             "problem_references": render_problem_references, "rve_paths": render_rve_paths}
+             "problem_references": render_problem_references, "rve_paths": render_rve_paths,
+             "ensemble_resampling": render_ensemble_resampling}
 
 
 def rewrite(text: str, document: str) -> str:
