@@ -110,7 +110,7 @@ def render_headline(record: dict) -> str:
         "| quantity | value | from |",
         "| --- | --- | --- |",
         f"| `snakemake -j2 all`, default scale | **{f['all_wall_s'] / 60:.1f} min** ({setup}{report}: "
-        f"{total / 60:.0f} min in all) | fresh clone, {label}, {machine['cores']} cores{note} |",
+        f"{total / 60:.0f} min in all) | fresh clone, {label}, {machine['cores']} cores of {machine['cpu']}{note} |",
         f"| FEM–DEM, default scale ({h['gauss_points']} RVEs × {h['n_spheres']} spheres, 2 workers) | "
         f"Path1 {rules['fem_dem/path1']:.0f} s, Path2 {rules['fem_dem/path2']:.0f} s | {label}, its `benchmarks/` files |",
         f"| DEM particle-steps, default scale | Path1 {work['fem_dem/path1']['particle_steps']:.2e}, "
