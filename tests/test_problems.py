@@ -158,8 +158,17 @@ def test_comparison_table_measures_errors_in_the_band_and_under_the_footing(tmp_
     assert table.loc["off", "steps reached"] == "14 of 14"
     stopped = comparison_table(reference, {"stopped": off.isel(step=slice(0, 5))}).set_index("run")
     assert stopped.loc["stopped", "steps reached"] == "4 of 14"
-    error_map_figure(reference, {"off": off}, tmp_path / "map.png", title="t")
+    drawn = error_map_figure(reference, {"off": off, "stopped": off.isel(step=slice(0, 5))}, tmp_path / "map.png",
+                             title="t")
     assert plt_image_has_colour(tmp_path / "map.png")
+    peak, last = int(np.argmax(reference.load_force.values)), reference.sizes["step"] - 1
+    assert sorted(drawn["off"]) == sorted({peak, last}) and sorted(drawn["stopped"]) == [s for s in (peak,) if s < 5]
+    p0 = reference.attrs["confining_pressure_Pa"]
+    for step, shown in drawn["off"].items():  # 10 % of ‖σ_ref‖ / p0 in the band, nothing outside it
+        sigma = reference.stress.values[step]  # Voigt: the three shears count twice in the tensor norm
+        expected = 0.1 * np.sqrt((sigma[:, :3] ** 2).sum(axis=-1) + 2 * (sigma[:, 3:] ** 2).sum(axis=-1)) / p0
+        np.testing.assert_allclose(shown["error"][band], expected[band], rtol=1e-12)
+        assert np.all(shown["error"][~band] == 0) and shown["dem_points"].size == 0
 
     config = softening_config(tmp_path, footing={"load_paths": {"f": {"segments": [[2, 0.02]]}}})
     footing = run_fem_reference(config, "f", tmp_path / "footing.h5", problem="footing")

@@ -52,7 +52,7 @@ def tiny_chain(tmp_path_factory):
 
 
 @pytest.mark.slow
-def test_dataset_and_models(tiny_chain):
+def test_dataset_and_models(tiny_chain, tmp_path):
     L = Layout(tiny_chain)
     train, heldout = read_dataset(L.dataset("train")), read_dataset(L.dataset("heldout"))
     # training sources (config/tiny.yaml): path1's reference run and the 8 RVE paths of the tiny set,
@@ -83,7 +83,19 @@ def test_dataset_and_models(tiny_chain):
         assert member.heldout_loss.iloc[-1] < member.heldout_loss.iloc[0]
     mae = pd.read_csv(L.table("surrogate_training_mae.csv"))
     assert set(mae.network) == {"sigma", "tangent", "sigma_nohist", "tangent_nohist"}
-    assert Path(L.training("sigma_loss.png")).stat().st_size > 5000
+    # the loss figure shows the loss table: drawn again from it, the same curves and the same pixels
+    from PIL import Image
+
+    from granular_multiscale.analysis.figures import plot_losses
+
+    again = tmp_path / "sigma_loss.png"
+    drawn = plot_losses({"NNσ": losses}, again, loss_name=sigma.config["surrogate"]["loss"].upper())
+    for line, column in (("training", "train_loss"), ("held out", "heldout_loss")):
+        curves = [c for label, c in drawn["NNσ"].items() if label.startswith(line)]
+        assert curves and sum(len(x) for x, _ in curves) == len(losses)
+        np.testing.assert_array_equal(np.concatenate([y for _, y in curves]), losses[column].values)
+    with Image.open(L.training("sigma_loss.png")) as theirs, Image.open(again) as ours:
+        assert np.array_equal(np.asarray(theirs.convert("RGB")), np.asarray(ours.convert("RGB")))
     for rule in ("dataset", "train_sigma", "metrics"):
         assert Path(L.benchmark(f"surrogate/{rule}")).is_file()
 

@@ -171,10 +171,12 @@ def comparison_table(reference: xr.Dataset, runs: Mapping[str, xr.Dataset]) -> p
 
 
 def error_map_figure(reference: xr.Dataset, runs: Mapping[str, xr.Dataset], out, *, title: str,
-                     deformation_scale: float = 1.0, dpi: int = 120) -> Path:
+                     deformation_scale: float = 1.0, dpi: int = 120) -> dict:
     """Rows: the runs; columns: the reference's peak and its last step. Each Gauss point's quarter
     of its element (on the reference's deformed mesh) coloured by ‖σ − σ_ref‖ / p0; black dots mark
-    the points that answered from their RVE at that step (adaptive runs)."""
+    the points that answered from their RVE at that step (adaptive runs). Returns what it drew:
+    {run label: {step: {"error": [n_gp] the colours, "dem_points": the dotted Gauss points}}}, a
+    step the run never reached left out."""
     force = _force(reference)
     steps = sorted({int(np.argmax(force)), reference.sizes["step"] - 1})
     x, xlabel = load_axis(reference)
@@ -186,6 +188,7 @@ def error_map_figure(reference: xr.Dataset, runs: Mapping[str, xr.Dataset], out,
     fig, axes = plt.subplots(len(runs), len(steps), figsize=(max(4.0, 2.8 * aspect * len(steps) + 1.6),
                                                              2.4 * len(runs) + 1.0), squeeze=False, layout="constrained")
     cells = None
+    drawn = {label: {} for label in runs}
     for row, (label, run) in enumerate(runs.items()):
         for col, step in enumerate(steps):
             ax = axes[row, col]
@@ -201,10 +204,12 @@ def error_map_figure(reference: xr.Dataset, runs: Mapping[str, xr.Dataset], out,
                                    linewidths=0.2)
             cells.set_clim(0.0, max(hi, 1e-12))
             ax.add_collection(cells)
+            dem = np.zeros(len(polygons), dtype=bool)
             if "point_mode" in run:
                 dem = run["point_mode"].transpose("step", "gp").values[step].astype(bool)
                 centres = polygons[dem].mean(axis=1)
                 ax.plot(centres[:, 0], centres[:, 1], "k.", markersize=3)
+            drawn[label][step] = {"error": errors[label][step], "dem_points": np.flatnonzero(dem)}
             ax.autoscale_view()
             if row == 0:
                 ax.set_title(f"step {step}: {xlabel.split(' (')[0]} {x[step]:.2f} %", fontsize=8)
@@ -213,7 +218,8 @@ def error_map_figure(reference: xr.Dataset, runs: Mapping[str, xr.Dataset], out,
     if cells is not None:
         fig.colorbar(cells, ax=axes.ravel().tolist(), shrink=0.8, label="‖σ − σ_ref‖ / p0")
     fig.suptitle(textwrap.fill(f"{title} (dots: points that answered from their RVE)", 60), fontsize=9)
-    return save_figure(fig, out, dpi)
+    save_figure(fig, out, dpi)
+    return drawn
 
 
 # ------------------------------------------------------------------------------ states visited
