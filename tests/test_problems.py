@@ -158,6 +158,14 @@ def test_comparison_table_measures_errors_in_the_band_and_under_the_footing(tmp_
     assert table.loc["off", "steps reached"] == "14 of 14"
     stopped = comparison_table(reference, {"stopped": off.isel(step=slice(0, 5))}).set_index("run")
     assert stopped.loc["stopped", "steps reached"] == "4 of 14"
+    from granular_multiscale.analysis.problems import response_figure
+
+    drawn = response_figure({"reference": reference, "off": off}, tmp_path / "response.png", title="t")
+    x, force = drawn["force"]["reference"]
+    np.testing.assert_array_equal(x, 100 * reference.axial_strain.values)  # against the axial strain in %
+    np.testing.assert_allclose(drawn["force"]["off"][1], 1.02 * force, rtol=1e-12)  # the run's own force
+    np.testing.assert_array_equal(drawn["volumetric strain"]["off"][1], 100 * off.volumetric_strain.values)
+    assert plt_image_has_colour(tmp_path / "response.png")
     drawn = error_map_figure(reference, {"off": off, "stopped": off.isel(step=slice(0, 5))}, tmp_path / "map.png",
                              title="t")
     assert plt_image_has_colour(tmp_path / "map.png")

@@ -67,15 +67,19 @@ def force_axis(ds: xr.Dataset) -> tuple[np.ndarray, str]:
 
 
 # ------------------------------------------------------------------------------ figures
-def response_figure(runs: Mapping[str, xr.Dataset], out, *, title: str, figsize=(10.0, 4.0), dpi: int = 120) -> Path:
-    """Force–displacement (left) and volumetric strain (right) of each run against its load."""
+def response_figure(runs: Mapping[str, xr.Dataset], out, *, title: str, figsize=(10.0, 4.0), dpi: int = 120) -> dict:
+    """Force–displacement (left) and volumetric strain (right) of each run against its load.
+    Returns what it drew: {"force" | "volumetric strain": {run label: (load, value)}}."""
     fig, (left, right) = plt.subplots(1, 2, figsize=figsize)
+    drawn = {"force": {}, "volumetric strain": {}}
     for k, (label, ds) in enumerate(runs.items()):
         x, xlabel = load_axis(ds)
         y, ylabel = force_axis(ds)
         st = style(k)
-        left.plot(x, y, label=label, **st)
-        right.plot(x, 100 * ds["volumetric_strain"].values, label=label, **st)
+        drawn["force"][label] = (x, y)
+        drawn["volumetric strain"][label] = (x, 100 * ds["volumetric_strain"].values)
+        left.plot(*drawn["force"][label], label=label, **st)
+        right.plot(*drawn["volumetric strain"][label], label=label, **st)
         left.set_xlabel(xlabel)
         right.set_xlabel(xlabel)
         left.set_ylabel(ylabel)
@@ -85,7 +89,8 @@ def response_figure(runs: Mapping[str, xr.Dataset], out, *, title: str, figsize=
     left.legend(fontsize=8)
     fig.suptitle(title, fontsize=10)
     fig.subplots_adjust(left=0.08, right=0.98, bottom=0.14, top=0.88, wspace=0.28)
-    return save_figure(fig, out, dpi)
+    save_figure(fig, out, dpi)
+    return drawn
 
 
 def gauss_point_cells(ds: xr.Dataset, step: int, scale: float = 1.0) -> np.ndarray:
