@@ -20,7 +20,11 @@ Indicator (``adaptive.indicator``), per point, from the surrogate's answer at th
 * ``out_of_range``: the largest excess of a feature outside the training range, in units of that
   range (0 inside; :meth:`SurrogateMaterial.trial_uncertainty`);
 * ``max``: max(spread, w · excess), w = ``adaptive.out_of_range_weight``: both normalised by their
-  thresholds (w = spread threshold / excess threshold), so that one threshold moves both.
+  thresholds (w = spread threshold / excess threshold), so that one threshold moves both;
+* ``off_training``: how far the point's inputs are beyond the training data, d / r − 1 with d the
+  distance to its 5th-nearest training state and r the distance within which 99 % of the training
+  states have theirs (0 inside the data; :meth:`SurrogateMaterial.trial_novelty`, ``novelty``).
+  Unlike the box of ``out_of_range`` it sees a combination of inputs no training state has.
 
 A surrogate point is promoted when its indicator is **≥ threshold**: threshold 0 is DEM at every
 point from the first evaluation on (FEM–DEM), threshold ∞ never (FEM–ML).
@@ -100,7 +104,7 @@ from ..dem.subset import DemSubsetMaterialPointSet
 from ..materials.base import MaterialPointSet
 from ..surrogate.material import SurrogateMaterial, relative_spread
 
-INDICATORS = ("spread", "out_of_range", "max")
+INDICATORS = ("spread", "out_of_range", "max", "off_training")
 #: the indicator of a control run: the promotions of another run, copied
 SCHEDULE = "schedule"
 CORRECTIONS = ("none", "kernel", "local_kernel")
@@ -155,6 +159,9 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
             raise ValueError(f"config key 'adaptive.indicator' must be one of {INDICATORS}, got {indicator!r}")
         if not out_of_range_weight >= 0.0:
             raise ValueError(f"config key 'adaptive.out_of_range_weight' must be >= 0, got {out_of_range_weight}")
+        if indicator == "off_training" and schedule is None and not surrogate.knows_training_states:
+            raise ValueError("config key 'adaptive.indicator' 'off_training' needs networks whose model file keeps "
+                             "their training states: retrain them (rules train_*)")
         if correction not in CORRECTIONS:
             raise ValueError(f"config key 'adaptive.correction' must be one of {CORRECTIONS}, got {correction!r}")
         if not float(correction_length) > 0.0:
@@ -202,6 +209,8 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
 
     def indicator_values(self, stress: np.ndarray) -> np.ndarray:
         """[n] the indicator of the surrogate's last evaluation, whose stress was `stress`."""
+        if self.indicator == "off_training":
+            return self.surrogate.trial_novelty()
         spread, excess = self.surrogate.trial_uncertainty()
         if self.indicator == "out_of_range":
             return excess

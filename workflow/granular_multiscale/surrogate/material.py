@@ -317,6 +317,23 @@ class SurrogateMaterial(MaterialPointSet):
         _, excess = self._trial_out_of_range
         return self._member_spread(self._trial_members), excess.max(axis=1, initial=0.0)
 
+    @property
+    def knows_training_states(self) -> bool:
+        """Whether the model file kept its training inputs (what :meth:`trial_novelty` needs)."""
+        return self._training_states is not None
+
+    def trial_novelty(self) -> np.ndarray:
+        """[n] of the last evaluation: how far each point is beyond the training data, the distance
+        to its k-th nearest training state over the radius that 99 % of the training states are
+        within, minus 1 (0 inside the data; 1 at twice the radius)."""
+        if self._trial is None:
+            raise RuntimeError(f"{type(self).__name__}.trial_novelty() needs an evaluation first")
+        if self._training_states is None:
+            raise ValueError("the NNσ model file keeps no training states (trained before they were kept): "
+                             "retrain it to measure the distance to the training data")
+        states = self._training_states
+        return np.maximum(states.distance(self._trial_features) / states.radius - 1.0, 0.0)
+
     def trial_scaled_features(self) -> np.ndarray:
         """[n, features] the network inputs of the last evaluation, in units of their training range
         from its minimum (the strains share one range, as for the out-of-range excess): 0..1 inside it."""
