@@ -9,7 +9,9 @@ Training: material-point trajectories of the training path, lateral strain ratio
 shears within ±5 % of the axial strain (``surrogate.synthetic``). Test: other trajectories with
 a ratio 0.15–0.6 and shears within ±15 %, so that some lie inside the training data and some
 well outside it. Per load step, across the test points: Spearman's rank correlation between the
-members' spread ‖std σ‖ and the ensemble's error ‖σ − σ_ref‖, and the ratio error / spread.
+members' spread ‖std σ‖ and the ensemble's error ‖σ − σ_ref‖ (and, for comparison, between the
+distance to the training states, what adaptive.indicator off_training uses, and that error), and
+the ratio error / spread.
 Recorded (--out, default {output_dir}/bench/ensemble_resampling.json) per resampling and
 training seed: the median over the steps of both, the stress MAE on the test points, and the
 share of the test points whose error exceeds twice their spread (a spread too small to warn).
@@ -26,6 +28,7 @@ import torch
 from granular_multiscale.analysis.calibration import spearman
 from granular_multiscale.config import validate_config
 from granular_multiscale.materials.elastoplastic import Elastoplastic
+from granular_multiscale.novelty import TrainingStates
 from granular_multiscale.paths import load_paths_from_config
 from granular_multiscale.surrogate.dataset import build_dataset, features, targets
 from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
@@ -43,25 +46,35 @@ def trajectories(config: dict, n_points: int, seed: int, lateral_ratio, shear: f
     return material_point_run(Elastoplastic.from_config(n_points, config), strain, path)
 
 
-def spread_and_error(model, test) -> tuple[np.ndarray, np.ndarray]:
-    """[steps, points] the members' spread and the ensemble's error on the test dataset (Pa)."""
-    x = torch.as_tensor(features(test, model.history), dtype=torch.float32)
+def spread_distance_and_error(model, test) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """[steps, points] the members' spread, the distance to the training states (over the radius
+    the training states are within, ``novelty``) and the ensemble's error on the test dataset (Pa)."""
+    raw = features(test, model.history)
+    x = torch.as_tensor(raw, dtype=torch.float32)
     with torch.no_grad():
         members = np.stack([m(x).double().numpy() for m in model.members])  # [K, samples, 6]
     error = np.linalg.norm(members.mean(axis=0) - targets(test, "sigma"), axis=-1)
     spread = np.linalg.norm(members.std(axis=0), axis=-1)
+    states = TrainingStates(model.training_states, radius=model.training_radius)
+    distance = states.distance(raw) / states.radius
     shape = (test.sizes["step"], test.sizes["gp"])  # features order samples step-major
-    return spread.reshape(shape), error.reshape(shape)
+    return spread.reshape(shape), distance.reshape(shape), error.reshape(shape)
 
 
-def measure(spread: np.ndarray, error: np.ndarray) -> dict:
-    loaded = slice(1, None)  # step 0 is the fresh state: every member exact, no ranking to make
-    rho = [spearman(s, e) for s, e in zip(spread[loaded], error[loaded])]
-    ratio = error[loaded] / np.maximum(spread[loaded], 1e-12)
-    return {"spearman_median": float(np.nanmedian(rho)), "spearman_steps_above_0.5": float(np.nanmean(np.array(rho) >= 0.5)),
+def median_rho(indicator: np.ndarray, error: np.ndarray) -> tuple[float, float]:
+    """Over the loaded steps (step 0 is the fresh state, every member exact, nothing to rank): the
+    median of the per-step Spearman ρ between indicator and error, and the share of steps with ρ ≥ 0.5."""
+    rho = np.array([spearman(i, e) for i, e in zip(indicator[1:], error[1:])])
+    return float(np.nanmedian(rho)), float(np.nanmean(rho >= 0.5))
+
+
+def measure(spread: np.ndarray, distance: np.ndarray, error: np.ndarray) -> dict:
+    ratio = error[1:] / np.maximum(spread[1:], 1e-12)
+    (rho, above), (rho_distance, _) = median_rho(spread, error), median_rho(distance, error)
+    return {"spearman_median": rho, "spearman_steps_above_0.5": above, "distance_spearman_median": rho_distance,
             "error_over_spread_median": float(np.median(ratio)),
             "share_error_above_twice_spread": float(np.mean(ratio > 2.0)),
-            "stress_mae_kpa": 1e-3 * float(error[loaded].mean())}
+            "stress_mae_kpa": 1e-3 * float(error[1:].mean())}
 
 
 def main(argv=None) -> None:
@@ -84,7 +97,7 @@ def main(argv=None) -> None:
             t0 = time.perf_counter()
             model, _, _ = train(train_ds, heldout_ds, "sigma", settings, seed)
             row = {"resampling": resampling, "seed": seed, "train_s": time.perf_counter() - t0,
-                   **measure(*spread_and_error(model, test))}
+                   **measure(*spread_distance_and_error(model, test))}
             rows.append(row)
             print(", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()))
     measurement.finish({"test_points": test.sizes["gp"], "rows": rows}, args.out)

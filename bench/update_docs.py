@@ -305,11 +305,13 @@ def render_ensemble_resampling(record: dict) -> str:
     """Spread against error per ensemble resampling and training seed (bench_ensemble_resampling)."""
     f = record["figures"]
     lines = [f"{record['date'].split()[0]}, commit {record['commit'][:7]}, {f['test_points']} test points:", "",
-             "| resampling | seed | ρ(spread, error), median over steps | steps with ρ ≥ 0.5 | error / spread, median "
-             "| error > 2 × spread | mean ‖σ − σ_ref‖ (kPa) |", "| --- | --- | --- | --- | --- | --- | --- |"]
+             "| resampling | seed | ρ(spread, error), median over steps | steps with ρ ≥ 0.5 "
+             "| ρ(distance to the training states, error) | error / spread, median "
+             "| error > 2 × spread | mean ‖σ − σ_ref‖ (kPa) |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in f["rows"]:
         lines.append(f"| `{r['resampling']}` | {r['seed']} | {r['spearman_median']:.2f} | "
-                     f"{100 * r['spearman_steps_above_0.5']:.0f} % | {r['error_over_spread_median']:.2f} | "
+                     f"{100 * r['spearman_steps_above_0.5']:.0f} % | {r['distance_spearman_median']:.2f} | "
+                     f"{r['error_over_spread_median']:.2f} | "
                      f"{100 * r['share_error_above_twice_spread']:.0f} % | {r['stress_mae_kpa']:.1f} |")
     return "\n".join(lines) + "\n"
 
