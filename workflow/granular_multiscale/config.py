@@ -278,3 +278,20 @@ def load_config(path: str | Path | list | tuple | None = None, overrides: dict |
             node = node.setdefault(p, {})
         node[last] = value
     return validate_config(config)
+
+
+#: the Newton settings that dem.newton (and a problem's dem_newton) override for FEM–DEM runs
+NEWTON_OVERRIDES = ("tolerance", "max_iterations", "max_cutbacks", "line_search", "tangent_repair", "acceleration",
+                    "anderson_depth", "predictor")
+
+
+def dem_newton_config(config: dict, problem: str = "triaxial") -> dict:
+    """The config a FEM–DEM run of `problem` uses: ``newton`` with the overrides of ``dem.newton``,
+    and then those of the problem's ``dem_newton`` (the plane-strain problems' sections)."""
+    cfg = copy.deepcopy(config)
+    for key in NEWTON_OVERRIDES:
+        if key in cfg["dem"].get("newton", {}):
+            cfg["newton"][key] = cfg["dem"]["newton"][key]
+    if problem != "triaxial":
+        cfg["newton"].update(cfg[problem].get("dem_newton", {}))
+    return cfg

@@ -45,12 +45,8 @@ class TrainingStates:
         return d[:, -1].reshape(shape)
 
     def off(self, features: np.ndarray) -> np.ndarray:
-        """[...] True where a state is farther from the training states than :attr:`radius` (the search
-        stops at the radius: a state with fewer than k training states inside it is off)."""
-        shape = features.shape[:-1]
-        scaled = ((features - self.lo) / self.span).reshape(-1, features.shape[-1])
-        d, _ = self.tree.query(scaled, k=self.k, distance_upper_bound=self.radius * (1 + 1e-12))
-        return (d[:, -1] > self.radius).reshape(shape)
+        """[...] True where a state is farther from the training states than :attr:`radius`."""
+        return self.distance(features) > self.radius
 
 
 def sample_states(features: np.ndarray, n_max: int, seed: int) -> np.ndarray:

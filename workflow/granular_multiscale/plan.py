@@ -14,6 +14,7 @@ benches take their paths from it too. Nothing here imports Snakemake or reads a 
 from __future__ import annotations
 
 from .adaptive import threshold_label
+from .config import dem_newton_config
 from .paths import load_paths_from_config
 
 # network name -> (what it predicts, whether it reads the history variables)
@@ -163,10 +164,10 @@ class Plan:
         # what defines a packing / a FEM–DEM run, not where it runs: a change of these reruns the rule
         self.packing_definition = {k: v for k, v in dem.items() if k not in (*WHERE_DEM_RUNS, "newton")}
         self.run_definition = {k: v for k, v in dem.items() if k not in WHERE_DEM_RUNS}
-        # the Newton settings the specimen's FEM–DEM runs solve with (newton, overridden by dem.newton as
-        # drivers.fem_dem.dem_newton_config does): the tolerance study's row that measures their own error
-        self.reference_newton = {key: {**config["newton"], **dem.get("newton", {})}[key]
-                                 for key in ("tolerance", "predictor", "acceleration")}
+        # the Newton settings the specimen's FEM–DEM runs solve with: the tolerance study's row that
+        # measures their own error
+        solved = dem_newton_config(config)["newton"]
+        self.reference_newton = {key: solved[key] for key in ("tolerance", "predictor", "acceleration")}
         self.rve_path_sets = list(config["rve_paths"]["sets"])
 
         surrogate = config["surrogate"]

@@ -548,14 +548,13 @@ def headline_display(h: Mapping) -> dict:
     def kpa(v):
         return None if v is None else f"{readable_number(v)} kPa"
 
-    small = readable_small
     n = h.get("break_even_runs")
     newton = h.get("reference_newton") or {}
     convergence = h.get("reference_convergence") or {}
     return {
-        "reference_tolerance": small(newton["tolerance"]) if newton else None,
-        "reference_residual_max": small(newton["residual_relative_max"]) if newton else None,
-        "converged_tolerance": small(convergence["converged_tolerance"]) if convergence else None,
+        "reference_tolerance": readable_small(newton["tolerance"]) if newton else None,
+        "reference_residual_max": readable_small(newton["residual_relative_max"]) if newton else None,
+        "converged_tolerance": readable_small(convergence["converged_tolerance"]) if convergence else None,
         "speedup": readable_ratio(h["speedup"]),
         "reference_wall_time": readable_duration(h["reference_wall_time_s"]),
         "surrogate_wall_time": readable_duration(h["surrogate_wall_time_s"]),

@@ -10,31 +10,16 @@ A problem with a weak zone (``biaxial.weak_zone``) gives the RVEs inside it the 
 
 from __future__ import annotations
 
-import copy
 import logging
 import shutil
 import time
 
 from .. import checkpoint as checkpoints
+from ..config import NEWTON_OVERRIDES, dem_newton_config  # noqa: F401  (the drivers' and tests' names)
 from ..data import write_run
 from ..dem.material import DemMaterialPointSet
 from ..dem.run import inertial_number
 from .problems import dem_packings, problem_and_path
-
-NEWTON_OVERRIDES = ("tolerance", "max_iterations", "max_cutbacks", "line_search", "tangent_repair", "acceleration",
-                    "anderson_depth", "predictor")
-
-
-def dem_newton_config(config: dict, problem: str = "triaxial") -> dict:
-    """The config a FEM–DEM run of `problem` uses: ``newton`` with the overrides of ``dem.newton``,
-    and then those of the problem's ``dem_newton`` (the plane-strain problems' sections)."""
-    cfg = copy.deepcopy(config)
-    for key in NEWTON_OVERRIDES:
-        if key in cfg["dem"].get("newton", {}):
-            cfg["newton"][key] = cfg["dem"]["newton"][key]
-    if problem != "triaxial":
-        cfg["newton"].update(cfg[problem].get("dem_newton", {}))
-    return cfg
 
 
 def run_fem_dem(config: dict, path_name: str, packing_paths: list[str], output: str,

@@ -163,6 +163,7 @@ class SurrogateMaterial(MaterialPointSet):
         self._trial: np.ndarray | None = None
         self._trial_members: torch.Tensor | None = None
         self._trial_out_of_range: tuple[np.ndarray, np.ndarray] | None = None
+        self._trial_distance: np.ndarray | None = None
         self._step_info = {"out_of_range_points": 0.0, "out_of_range_excess": 0.0}
         self._commits = 0
         self._spread: list[np.ndarray] = []  # per committed state: [n_points, 6] std over the members (Pa)
@@ -244,6 +245,7 @@ class SurrogateMaterial(MaterialPointSet):
         self._trial = strain.copy()
         self._trial_members = members  # the members' NNσ: the spread, if this trial is committed
         self._trial_features = x.numpy()
+        self._trial_distance = None  # to the training states: measured when asked, once per evaluation
         self._trial_out_of_range = self._out_of_range(x.numpy())
         return stress, tangent_np
 
@@ -278,7 +280,7 @@ class SurrogateMaterial(MaterialPointSet):
             "out_of_range_excess": float(excess.max()) if excess.size else 0.0,
         }
         if self._training_states is not None:
-            self._note_off_training(self._training_states.off(self._trial_features))
+            self._note_off_training(self._distance_to_training() > self._training_states.radius)
         if points.size:
             features = [self.feature_names[j] for j in np.flatnonzero(flagged.any(axis=0))]
             self.logger.warning(
@@ -331,8 +333,14 @@ class SurrogateMaterial(MaterialPointSet):
         if self._training_states is None:
             raise ValueError("the NNσ model file keeps no training states (trained before they were kept): "
                              "retrain it to measure the distance to the training data")
-        states = self._training_states
-        return np.maximum(states.distance(self._trial_features) / states.radius - 1.0, 0.0)
+        return np.maximum(self._distance_to_training() / self._training_states.radius - 1.0, 0.0)
+
+    def _distance_to_training(self) -> np.ndarray:
+        """[n] the last evaluation's distance to the k-th nearest training state (the indicator and the
+        commit of one evaluation share it)."""
+        if self._trial_distance is None:
+            self._trial_distance = self._training_states.distance(self._trial_features)
+        return self._trial_distance
 
     def trial_scaled_features(self) -> np.ndarray:
         """[n, features] the network inputs of the last evaluation, in units of their training range
