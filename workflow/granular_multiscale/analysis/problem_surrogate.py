@@ -195,6 +195,8 @@ def error_map_figure(reference: xr.Dataset, runs: Mapping[str, xr.Dataset], out,
             ax.set_xticks([])
             ax.set_yticks([])
             ax.set_aspect("equal")
+            if col == 0:  # also on the row of a run that stopped before the first step shown
+                ax.set_ylabel(textwrap.fill(label, 28), fontsize=7)
             if step >= errors[label].shape[0]:
                 ax.text(0.5, 0.5, "run stopped\nbefore this step", ha="center", va="center", transform=ax.transAxes,
                         fontsize=8)
@@ -213,8 +215,6 @@ def error_map_figure(reference: xr.Dataset, runs: Mapping[str, xr.Dataset], out,
             ax.autoscale_view()
             if row == 0:
                 ax.set_title(f"step {step}: {xlabel.split(' (')[0]} {x[step]:.2f} %", fontsize=8)
-            if col == 0:
-                ax.set_ylabel(textwrap.fill(label, 28), fontsize=7)
     if cells is not None:
         fig.colorbar(cells, ax=axes.ravel().tolist(), shrink=0.8, label="‖σ − σ_ref‖ / p0")
     fig.suptitle(textwrap.fill(f"{title} (dots: points that answered from their RVE)", 60), fontsize=9)
