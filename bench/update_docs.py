@@ -316,9 +316,23 @@ def render_ensemble_resampling(record: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def render_strain_rate(record: dict) -> str:
+    """FEM–DEM of one path at each RVE strain rate against the slowest (bench_strain_rate)."""
+    rows = record["figures"]["rows"]
+    lines = [f"{record['date'].split()[0]}, commit {record['commit'][:7]}, against {rows[0]['against']:g} /s:", "",
+             "| strain rate | inertial number | DEM evaluations / step | particle-steps (ratio) "
+             "| top force, max diff. (% of peak) | volumetric strain, max diff. (% of peak) | stress MAE (kPa) |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        lines.append(f"| {r['strain_rate']:g} /s | {r['inertial_number']:.1e} | {r['evaluations_per_step']:.2f} | "
+                     f"{r['particle_steps']:.2e} ({r['particle_steps_ratio']:.2f}) | {r['top_force_diff_pct']:.2f} | "
+                     f"{r['volumetric_strain_diff_pct']:.2f} | {r['stress_mae_kpa']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
 RENDERERS = {"headline": render_headline, "rules": render_rules, "fem_ml": render_fem_ml, "problems": render_problems,
              "problem_references": render_problem_references, "rve_paths": render_rve_paths,
-             "ensemble_resampling": render_ensemble_resampling}
+             "ensemble_resampling": render_ensemble_resampling, "strain_rate": render_strain_rate}
 
 
 def rewrite(text: str, document: str) -> str:
