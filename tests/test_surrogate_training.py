@@ -11,6 +11,7 @@ from granular_multiscale.materials.elastoplastic import Elastoplastic
 from granular_multiscale.paths import load_paths_from_config
 from granular_multiscale.surrogate.dataset import STRAIN_FEATURES, TANGENT_TARGETS, build_dataset, features, targets
 from granular_multiscale.surrogate.models import EnsembleMLP, ModelFileError, SurrogateModel
+from granular_multiscale.surrogate import training
 from granular_multiscale.surrogate.training import TrainingError, model_seed, train
 
 CONFIG = validate_config({"reference_material": "elastoplastic"})
@@ -185,6 +186,25 @@ def test_ensemble_is_the_mean_of_its_members(data, tmp_path):
         other = SurrogateModel.create("sigma", True, {"x_min": np.zeros(9), "x_max": np.ones(9),
                                                       "y_min": np.zeros(6), "y_max": np.ones(6)}, FAST)
         EnsembleMLP([ensemble.members[0], other.network])
+
+
+def test_members_fitted_together_are_the_members_fitted_one_by_one(data, monkeypatch):
+    """The members of an ensemble are fitted as one stacked batch; each is the network that fitting
+    the members one after the other gives: the same batches and Adam updates, so the same weights
+    and loss histories (measured: bit-identical; allowed: float32 rounding of the batched products)."""
+    settings = dict(FAST, ensemble_size=3, epochs=20)
+    together, losses_together, _ = train(*data, "sigma", settings, seed=3)
+
+    def one_by_one(nets, fit, settings, seeds, labels, logger):
+        return [training._fit_network(net, fit, settings, seed, label, logger) for net, seed, label in zip(nets, seeds, labels)]
+
+    monkeypatch.setattr(training, "_fit_together", one_by_one)
+    alone, losses_alone, _ = train(*data, "sigma", settings, seed=3)
+    for k, (a, b) in enumerate(zip(together.members, alone.members)):
+        for name, value in a.state_dict().items():
+            np.testing.assert_allclose(value.numpy(), b.state_dict()[name].numpy(), rtol=1e-5, atol=1e-6, err_msg=f"member {k} {name}")
+    columns = ["member", "epoch", "train_loss", "heldout_loss"]
+    np.testing.assert_allclose(losses_together[columns].to_numpy(), losses_alone[columns].to_numpy(), rtol=1e-5)
 
 
 def test_format_1_model_files_still_load(data, tmp_path):
