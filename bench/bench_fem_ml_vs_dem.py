@@ -18,8 +18,8 @@ in a report).
 Printed, and written to the record (--out, default {output_dir}/bench/fem_ml_vs_dem.json): per
 run (``fem_dem``; ``fem_ml``; ``fem_ml_at_dem_tolerance``) seconds per load step, Newton
 iterations and evaluations per step, cutbacks, start-up and whole-run seconds; the ratios; the
-DEM cost per particle-step and its time split (``dem``); FEM–ML's top-force error against
-FEM–DEM on these steps, in % of FEM–DEM's peak.
+DEM cost per particle-step and its time split (``dem``); FEM–ML's top-force and volumetric-strain
+errors against FEM–DEM on these steps, in % of FEM–DEM's peak.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from granular_multiscale.fem.triaxial import TriaxialProblem
 from granular_multiscale.paths import LoadPath, load_paths_from_config
 from granular_multiscale.plan import Layout
 
-from common import bench_parser, run_folder, surrogate_models, top_force_error_pct
+from common import bench_parser, curve_error_pct, run_folder, surrogate_models, top_force_error_pct
 
 
 def first_steps(path: LoadPath, n: int) -> LoadPath:
@@ -171,8 +171,9 @@ def main(argv=None) -> dict:
               f"(fork, transfer, Python) {dem_cost['coupling_overhead_share']:.0%}; "
               f"the FEM outside the material {dem_cost['fem_outside_the_material_share']:.0%} of the run")
     top = top_force_error_pct(dem_ds, ml_ds)
-    print(f"  (FEM–ML vs FEM–DEM top force on these steps: max difference {top:.1f} % of the peak — only "
-          "meaningful with networks trained on this DEM)")
+    volumetric = curve_error_pct(dem_ds, ml_ds, "volumetric_strain")["all"]
+    print(f"  (FEM–ML vs FEM–DEM on these steps: top force max difference {top:.1f} %, volumetric strain "
+          f"{volumetric:.1f} % of the peak — only meaningful with networks trained on this DEM)")
     figures = {"mesh": "x".join(map(str, problem.mesh_elements)), "gauss_points": n_gp,
                "n_spheres": config["dem"]["n_spheres"], "steps": path.n_steps, "path": full_path.name,
                "packing": packing_note, "networks": models_note,
@@ -181,7 +182,7 @@ def main(argv=None) -> dict:
                "ratio_s_per_step": dem["s_per_step"] / a["s_per_step"],
                "ratio_s_per_step_at_dem_tolerance": dem["s_per_step"] / b["s_per_step"],
                "ratio_whole_run": dem["total_s"] / a["total_s"],
-               "dem": dem_cost, "fem_ml_top_force_error_pct": top}
+               "dem": dem_cost, "fem_ml_top_force_error_pct": top, "fem_ml_volumetric_strain_error_pct": volumetric}
     measurement.finish(figures, args.out)
     print(f"wrote {args.out}")
     return figures

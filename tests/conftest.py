@@ -1,9 +1,12 @@
 """What the test modules share: the `needs_yade` marker (skipped, with the reason, where YADE
-cannot be imported) and a material-point set that simulates a killed run."""
+cannot be imported), the package's logging restored after each test, and a material-point set
+that simulates a killed run."""
 
 from __future__ import annotations
 
 import functools
+import logging
+import sys
 
 import pytest
 
@@ -25,6 +28,19 @@ def pytest_collection_modifyitems(config, items):
     if needing and (reason := yade_missing()):
         for item in needing:
             item.add_marker(pytest.mark.skip(reason=f"needs YADE: {reason}"))
+
+
+@pytest.fixture(autouse=True)
+def _package_logging_restored():
+    """A rule script's main() called in a test sets up the package's logger with a handler on the
+    stderr pytest captures for that test; once the capture is closed, a later test's log record
+    would be a logging error. Each test leaves the logger's handlers and the excepthook as it found them."""
+    logger = logging.getLogger("granular_multiscale")
+    handlers, level, hook = list(logger.handlers), logger.level, sys.excepthook
+    yield
+    logger.handlers[:] = handlers
+    logger.setLevel(level)
+    sys.excepthook = hook
 
 
 class KilledAfterCommits:

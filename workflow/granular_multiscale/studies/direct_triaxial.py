@@ -60,6 +60,9 @@ from pathlib import Path
 import numpy as np
 
 REPORT_AT = (0.005, 0.01, 0.02, 0.03, 0.045)
+#: the strain rate of the study (1/s): the direct test's, its replays' and its FEM–DEM runs' (the
+#: pipeline's default is 5; the study's measurements and the tests' tolerances are at 2.5)
+STUDY_STRAIN_RATE = 2.5
 MODES = ("servo", "replay", "peri_triax")
 SHEAR = ("fixed", "free")
 LATERAL = ("independent", "equal")
@@ -71,7 +74,7 @@ class DirectSpec:
 
     mode: str = "servo"
     pressure: float = 1.0e5
-    strain_rate: float = 2.5          # axial (servo mode), 1/s
+    strain_rate: float = STUDY_STRAIN_RATE  # axial (servo mode), 1/s
     axial_strain: float = 0.045       # end of the test (servo mode), compression positive
     shear: str = "fixed"              # servo: shear strains zero, or shear stresses zero
     lateral: str = "independent"      # servo: σ11 and σ22 each at −p, or one rate for ε11 = ε22 (mean at −p)
@@ -86,7 +89,7 @@ class DirectSpec:
     replay_stops: bool = True
     min_steps: int = 20               # replay: as dem.min_steps
     max_steps: int = 20000            # replay: as dem.max_steps
-    replay_rate: float = 2.5          # replay: as dem.strain_rate (N per increment)
+    replay_rate: float = STUDY_STRAIN_RATE  # replay: as the FEM–DEM run's dem.strain_rate (N per increment)
     damping: float | None = None      # NewtonIntegrator damping; None = the packing's (0.2)
     homo_deform: int | None = None    # Cell.homoDeform; None = the packing's (YADE's default 2)
     dt_factor: float = 1.0            # DEM time step = this × the packing's
@@ -379,12 +382,13 @@ def run_direct(spec: DirectSpec, packing: str | Path, timeout: float | None = No
 def fem_dem_config(n_steps: int = 45, axial_strain: float = 0.045, tolerance: float = 1e-3,
                    dem: dict | None = None, newton: dict | None = None) -> dict:
     """The reference FEM–DEM setting: uniform field, smooth platens, one monotonic segment,
-    dem.newton.tolerance (other keys: the defaults, or ``dem`` / ``dem.newton`` overrides)."""
+    dem.newton.tolerance, the study's strain rate (other keys: the defaults, or ``dem`` /
+    ``dem.newton`` overrides)."""
     from ..config import validate_config
 
     return validate_config({
         "specimen": {"platen": "smooth", "uniform_field": True},
-        "dem": {**(dem or {}), "newton": {"tolerance": tolerance, **(newton or {})}},
+        "dem": {"strain_rate": STUDY_STRAIN_RATE, **(dem or {}), "newton": {"tolerance": tolerance, **(newton or {})}},
         "load_paths": {"mono": {"segments": [[int(n_steps), float(axial_strain)]]}},
         "training_path": "mono", "validation_path": "mono",
     })
