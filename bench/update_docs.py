@@ -330,9 +330,23 @@ def render_strain_rate(record: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def render_fem_ml_vs_dem(record: dict) -> str:
+    """One line: FEM–ML against FEM–DEM on the same mesh and path (bench_fem_ml_vs_dem)."""
+    f, config = record["figures"], record["settings"].get("config_difference", {})
+    pressure = config.get("specimen", {}).get("confining_pressure")
+    where = f"confining pressure {pressure / 1e3:g} kPa, " if pressure else ""
+    return (f"{record['date'].split()[0]}, commit {record['commit'][:7]}: {where}{f['path']}, {f['steps']} steps, "
+            f"{f['gauss_points']} RVEs of {f['n_spheres']} spheres; "
+            f"{'the networks of a pipeline run' if f['networks'].startswith('pipeline models') else f['networks']}. "
+            f"FEM–ML against FEM–DEM: "
+            f"top force {f['fem_ml_top_force_error_pct']:.1f} %, volumetric strain "
+            f"{f['fem_ml_volumetric_strain_error_pct']:.0f} % of the peak (largest over the path).\n")
+
+
 RENDERERS = {"headline": render_headline, "rules": render_rules, "fem_ml": render_fem_ml, "problems": render_problems,
              "problem_references": render_problem_references, "rve_paths": render_rve_paths,
-             "ensemble_resampling": render_ensemble_resampling, "strain_rate": render_strain_rate}
+             "ensemble_resampling": render_ensemble_resampling, "strain_rate": render_strain_rate,
+             "fem_ml_vs_dem": render_fem_ml_vs_dem}
 
 
 def rewrite(text: str, document: str) -> str:
