@@ -65,25 +65,14 @@ PAPER_RVES, PAPER_SPHERES = 2000, 1000
 
 
 def dem_work(record: dict) -> dict[str, dict]:
-    """The DEM work of every DEM run of the record; a record made before bench_all kept it has the
-    particle-steps of the triaxial FEM–DEM runs only (and no CPU time)."""
-    f = record["figures"]
-    if "dem_work" in f:
-        return f["dem_work"]
-    return {f"fem_dem/{path}": {"particle_steps": steps} for path, steps in f.get("dem_particle_steps", {}).items()}
-
-
-def dem_cpu_per_particle_step(record: dict) -> float | None:
-    """CPU seconds per DEM particle-step over every DEM run of the record (None: not recorded)."""
-    work = [w for w in dem_work(record).values() if "cpu_s" in w]
-    return sum(w["cpu_s"] for w in work) / sum(w["particle_steps"] for w in work) if work else None
+    """The DEM work of every DEM run of the record: particle-steps, CPU and wall seconds (bench_all)."""
+    return record["figures"]["dem_work"]
 
 
 def dem_cost_rows(record: dict) -> list[str]:
     """The DEM cost per particle-step and, at that cost, FEM–DEM of Path2 at the paper scale."""
-    cpu_per_step = dem_cpu_per_particle_step(record)
-    if cpu_per_step is None:
-        return []
+    work = dem_work(record).values()
+    cpu_per_step = sum(w["cpu_s"] for w in work) / sum(w["particle_steps"] for w in work)
     h, cores, label = record["figures"]["headline"], record["machine"]["cores"], run_label(record)
     per_sphere = dem_work(record)["fem_dem/path2"]["particle_steps"] / (h["material_points_evaluated"] * h["n_spheres"])
     paper_steps = per_sphere * PAPER_RVES * PAPER_SPHERES
