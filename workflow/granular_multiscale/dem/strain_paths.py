@@ -29,6 +29,19 @@ triaxial
     contact tangent is stiffer than the RVE, so the lateral stress lags and the next
     increment corrects it (default scale, 32 trajectories × 80 steps of 400-sphere RVEs: median
     3.3 %, largest 14.5 % off its target; shear stresses below 2.1 kPa). The strain the file records is the strain the RVE got.
+plane_strain
+    A plane-strain biaxial test on the RVE that goes on into a shear band, as the Gauss points of
+    the plane-strain problems see it (x–z plane, y out of plane: ε22 = ε12 = ε23 = 0 throughout).
+    Phase 1 (a drawn ``compression_*_fraction`` of the steps): compression along an in-plane
+    loading axis n at a drawn angle from z (``max_axis_angle``), by ``increment`` per step with
+    unload–reload cycles like the triaxial family's, while the stresses across it are stress
+    controlled, t·σ·t = −f·p0 and n·σ·t = 0. Phase 2: simple shear in the frame of a band whose
+    direction b makes a drawn angle α with n (``band_angle_*``) and whose normal is m: m·ε·b grows in
+    the sense of phase 1's shear to a drawn total (``band_shear_*``), b·ε·b is held (a band does not
+    stretch along itself) and m·σ·m keeps the value it had at the switch, so the RVE dilates or
+    compacts as it wants. The designed strain is the imposed part (−s·n⊗n, then the band shear);
+    the driver chooses the other components (:func:`mixed_control`, rows of
+    :func:`plane_strain_rows`).
 proportional
     ε(t) = α(t)·n for a random unit direction n of the 6-D strain space: α grows monotonically
     to a drawn amplitude (``min_amplitude_fraction``..1 of the largest the bounds allow along
@@ -58,9 +71,11 @@ from ..config import ConfigError, load_config, merged, rve_paths_section
 from ..tensors import ENGINEERING_FACTOR, tensor_to_voigt, voigt_to_tensor
 from .worker import steps_for_increment
 
-FAMILIES = ("axisymmetric", "random_walk", "proportional", "triaxial")
+FAMILIES = ("axisymmetric", "random_walk", "proportional", "triaxial", "plane_strain")
 #: families whose lateral strains the driver sets from the RVE's response (mixed control)
-STRESS_CONTROLLED = ("triaxial",)
+STRESS_CONTROLLED = ("triaxial", "plane_strain")
+#: the plane of the plane-strain problems and family: x (axis 0) and z (axis 2); y is out of plane
+IN_PLANE_X, OUT_OF_PLANE, IN_PLANE_Z = np.eye(3)
 #: absolute slack (strain) of the bound checks: round-off of eigenvalues and sums
 BOUND_SLACK = 1e-12
 MAX_TRIES = 500
@@ -136,7 +151,12 @@ def check_section(section: dict) -> None:
     """What the schema cannot say: ranges given by pairs of keys, and an increment that fits the bounds."""
     for family, low, high in (("axisymmetric", "nu_min", "nu_max"), ("axisymmetric", "cycles_min", "cycles_max"),
                               ("triaxial", "cycles_min", "cycles_max"),
-                              ("triaxial", "lateral_stress_min_fraction", "lateral_stress_max_fraction")):
+                              ("triaxial", "lateral_stress_min_fraction", "lateral_stress_max_fraction"),
+                              ("plane_strain", "cycles_min", "cycles_max"),
+                              ("plane_strain", "lateral_stress_min_fraction", "lateral_stress_max_fraction"),
+                              ("plane_strain", "compression_min_fraction", "compression_max_fraction"),
+                              ("plane_strain", "band_angle_min", "band_angle_max"),
+                              ("plane_strain", "band_shear_min", "band_shear_max")):
         if section[family][low] > section[family][high]:
             raise ConfigError(f"config key 'rve_paths.{family}.{low}': {section[family][low]} is larger than "
                               f"rve_paths.{family}.{high} = {section[family][high]}")
@@ -182,7 +202,7 @@ def generate(name: str, counts: dict[str, int], n_steps: int, seed: int, increme
              family_settings: dict[str, dict]) -> StrainPaths:
     """The trajectories of every family, in the order of :data:`FAMILIES`; checks the bounds."""
     draw = {"axisymmetric": _axisymmetric, "random_walk": _random_walk, "proportional": _proportional,
-            "triaxial": _triaxial}
+            "triaxial": _triaxial, "plane_strain": _plane_strain}
     strains, families, parameters = [], [], []
     for index, family in enumerate(FAMILIES):
         rng = np.random.default_rng([seed, index])
@@ -194,10 +214,13 @@ def generate(name: str, counts: dict[str, int], n_steps: int, seed: int, increme
             parameters.append(info)
     strain = np.stack(strains)
     # a stress-controlled trajectory's volume is the RVE's response, not data: only its designed
-    # axial strain is checked (against the principal-strain bound)
+    # axial strain is checked (against the principal-strain bound); a plane-strain trajectory's band
+    # shear has its own bound (band_shear_max), its compression the principal-strain bound by construction
     axial_only = StrainBounds(bounds.max_strain, bounds.max_shear, np.inf, np.inf)
-    worst = np.where(np.isin(np.array(families), STRESS_CONTROLLED)[:, None], axial_only.violation(strain),
+    family = np.array(families)
+    worst = np.where(np.isin(family, STRESS_CONTROLLED)[:, None], axial_only.violation(strain),
                      bounds.violation(strain))
+    worst[family == "plane_strain"] = 0.0
     if worst.max() > BOUND_SLACK or np.any(strain[:, 0] != 0.0):
         t, step = np.unravel_index(np.argmax(worst), worst.shape)
         raise AssertionError(f"RVE-path set {name!r}: trajectory {t} ({families[t]}) leaves its bounds at step {step} "
@@ -248,6 +271,95 @@ def _triaxial(rng, k, count, n_steps, increment, bounds, settings, name):
     fraction = float(rng.uniform(settings["lateral_stress_min_fraction"], settings["lateral_stress_max_fraction"]))
     return strain, {"sense": "compression", "reversal_steps": reversals, "largest_level": int(level.max()),
                     "lateral_stress_fraction": fraction}
+
+
+def _plane_strain(rng, k, count, n_steps, increment, bounds, settings, name):
+    """The imposed part of a plane-strain trajectory: −s·n⊗n with cycles, then the band shear."""
+    n_compression = int(round(rng.uniform(settings["compression_min_fraction"],
+                                          settings["compression_max_fraction"]) * n_steps))
+    n_compression = min(max(n_compression, 1), n_steps - 1)
+    cap = int(math.floor(bounds.max_strain / increment + 1e-9))
+    level = _cycles(rng, n_compression, cap, settings)
+    if level is None:
+        raise ConfigError(
+            f"config key 'rve_paths.sets.{name}.n_steps': {n_compression} plane-strain compression increments of "
+            f"{increment:g} with {settings['cycles_min']}..{settings['cycles_max']} unload-reload cycles cannot be laid "
+            f"out within {cap * increment:g}; change n_steps, rve_paths.plane_strain.compression_min_fraction or "
+            f"cycles_min/cycles_max")
+    level, reversals = level
+    axis_angle = float(rng.uniform(-settings["max_axis_angle"], settings["max_axis_angle"]))
+    band_angle = float(rng.uniform(settings["band_angle_min"], settings["band_angle_max"]) * rng.choice([-1.0, 1.0]))
+    fraction = float(rng.uniform(settings["lateral_stress_min_fraction"], settings["lateral_stress_max_fraction"]))
+    band_shear = float(rng.uniform(settings["band_shear_min"], settings["band_shear_max"]))
+    n, t, m, b = plane_strain_frame(axis_angle, band_angle)
+    strain = np.zeros((n_steps + 1, 6))
+    strain[:n_compression + 1] = -increment * level[:, None] * _dyad(n, n)[None, :]
+    # phase 2: m·ε·b grows in the sense phase 1 sheared it (m·(−s n⊗n)·b = s·sin α·cos α)
+    shear = np.sign(band_angle) * band_shear * np.arange(1, n_steps - n_compression + 1) / (n_steps - n_compression)
+    strain[n_compression + 1:] = strain[n_compression] + shear[:, None] * (_dyad(m, b) + _dyad(b, m))[None, :]
+    return strain, {"sense": "compression", "reversal_steps": reversals, "largest_level": int(level.max()),
+                    "lateral_stress_fraction": fraction, "axis_angle": axis_angle, "band_angle": band_angle,
+                    "band_shear": band_shear, "compression_steps": n_compression}
+
+
+def plane_strain_frame(axis_angle: float, band_angle: float) -> tuple[np.ndarray, ...]:
+    """Unit vectors (n, t, m, b) in the x–z plane: the loading axis n at ``axis_angle`` degrees from z
+    (towards x), t across it, the band direction b at ``band_angle`` degrees from n (towards t) and
+    the band normal m."""
+    theta, alpha = np.radians(axis_angle), np.radians(band_angle)
+    n = np.sin(theta) * IN_PLANE_X + np.cos(theta) * IN_PLANE_Z
+    t = np.cos(theta) * IN_PLANE_X - np.sin(theta) * IN_PLANE_Z
+    b = np.cos(alpha) * n + np.sin(alpha) * t
+    m = -np.sin(alpha) * n + np.cos(alpha) * t
+    return n, t, m, b
+
+
+def _dyad(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a⊗b in Voigt order (11, 22, 33, 23, 13, 12) with its symmetric part's tensorial shear."""
+    return tensor_to_voigt(0.5 * (np.outer(a, b) + np.outer(b, a)))
+
+
+def contraction(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Weights w [6] with w·v = a·T·b for the symmetric tensor T of a Voigt vector v (tensorial
+    shear for strain, σ23 ... for stress: the off-diagonal entries count twice)."""
+    return _dyad(a, b) * ENGINEERING_FACTOR
+
+
+def plane_strain_rows(parameters: dict, step: int, pressure: float,
+                      stress_at_switch: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The six conditions a plane-strain trajectory's increment step−1 → step satisfies, as rows of
+    :func:`mixed_control`: weights [6, 6], which rows are stress rows [6], and their stress targets
+    [6] (a strain row takes its increment from the designed strain). ``pressure``: p0;
+    ``stress_at_switch``: the converged stress at the last compression step, whose m·σ·m the band
+    phase holds."""
+    n, t, m, b = plane_strain_frame(parameters["axis_angle"], parameters["band_angle"])
+    rows = [contraction(OUT_OF_PLANE, OUT_OF_PLANE), contraction(IN_PLANE_X, OUT_OF_PLANE),
+            contraction(OUT_OF_PLANE, IN_PLANE_Z)]  # plane strain: ε22 = ε12 = ε23 = 0
+    targets = np.zeros(6)
+    if step <= parameters["compression_steps"]:  # ε_nn imposed; σ_tt = −f·p0, σ_nt = 0
+        rows += [contraction(n, n), contraction(t, t), contraction(n, t)]
+        stress_rows = np.array([False, False, False, False, True, True])
+        targets[4] = -parameters["lateral_stress_fraction"] * pressure
+    else:  # ε_bb held, ε_mb imposed; σ_mm as at the switch
+        rows += [contraction(b, b), contraction(m, b), contraction(m, m)]
+        stress_rows = np.array([False, False, False, False, False, True])
+        targets[5] = contraction(m, m) @ stress_at_switch
+    return np.array(rows), stress_rows, targets
+
+
+def mixed_control(strain: np.ndarray, stress: np.ndarray, tangent: np.ndarray, designed_increment: np.ndarray,
+                  weights: np.ndarray, stress_rows: np.ndarray, stress_targets: np.ndarray,
+                  largest: float) -> np.ndarray:
+    """Next strain [n, 6] under mixed control: row k of ``weights`` [n, 6, 6] either fixes w_k·Δε to
+    w_k·``designed_increment`` (a strain row) or, where ``stress_rows`` [n, 6], asks w_k·(σ + D·Δε)
+    = ``stress_targets`` with the converged stress and tangent D (on engineering strain). One linear
+    solve per point; each increment component is clipped to ±``largest``."""
+    d = tangent * ENGINEERING_FACTOR[None, None, :]  # acts on the tensorial strain increment
+    matrix = np.where(stress_rows[..., None], weights @ d, weights)
+    rhs = np.where(stress_rows, stress_targets - np.einsum("nkj,nj->nk", weights, stress),
+                   np.einsum("nkj,nj->nk", weights, designed_increment))
+    increment = np.clip(np.linalg.solve(matrix, rhs[..., None])[..., 0], -largest, largest)
+    return strain + increment
 
 
 #: components the servo controls (σ11, σ22 to −f·p0, shear stresses to 0) and the one it imposes (ε33)

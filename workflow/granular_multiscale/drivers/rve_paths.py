@@ -3,7 +3,8 @@
     run_rve_paths(config, set_name, packing_paths, output, checkpoint, n_workers, logger)
 
 One trajectory of ``dem.strain_paths`` per material point; at every step one ``evaluate`` (the
-designed strain) and one ``commit``. The points are those of the reference material
+designed strain; for the stress-controlled families, triaxial and plane_strain, the strains they do
+not impose are solved from the last converged stress and tangent) and one ``commit``. The points are those of the reference material
 (``reference_material``): YADE RVEs of a :class:`DemMaterialPointSet`, or the analytic
 elastoplastic model (the fast stand-in of the tests and ``config/elastoplastic.yaml``). The file follows the data contract
 with one ``gp`` per trajectory (``data.RVE_PATHS_VARIABLES``).
@@ -34,8 +35,8 @@ import xarray as xr
 from .. import checkpoint as checkpoints, integrity
 from ..data import RVE_PATHS_VARIABLES, write_run
 from ..dem.material import DemMaterialPointSet
-from ..dem.strain_paths import (STRESS_CONTROLLED, StrainPaths, lateral_servo, set_definition, set_section,
-                                strain_paths_from_config)
+from ..dem.strain_paths import (StrainPaths, lateral_servo, mixed_control, plane_strain_rows, set_definition,
+                                set_section, strain_paths_from_config)
 from ..materials import make_material
 from ..history import HIST, history_from_sequence
 from ..tensors import COMP, TCOMP, tangent_to_upper
@@ -109,16 +110,21 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
             _report_contact_loss(records["stress"][0], records["tangent"][0], 0, lost, paths, pressure, criterion,
                                  logger)
         t_run = time.perf_counter()
-        servo = np.isin(paths.family, STRESS_CONTROLLED)
+        servo = paths.family == "triaxial"
         lateral_stress = -pressure * np.array([p.get("lateral_stress_fraction", 1.0) for p in paths.parameters])
+        plane = np.flatnonzero(paths.family == "plane_strain")
         for step in range(first, n_steps + 1):
             t_step = time.perf_counter()
             strain = paths.strain[:, step].copy()
-            if servo.any():  # lateral strains from the last converged response (mixed control)
+            # stress-controlled families: the strains they do not impose come from the last converged
+            # response (mixed control)
+            if servo.any():
                 strain[servo] = lateral_servo(
                     records["strain"][-1][servo], records["stress"][-1][servo], records["tangent"][-1][servo],
                     paths.strain[servo, step, 2] - paths.strain[servo, step - 1, 2], lateral_stress[servo],
                     largest=3.0 * paths.increment)
+            if plane.size:
+                strain[plane] = _plane_strain_step(paths, plane, step, records, pressure)
             stress, tangent = material.evaluate(strain)
             material.commit()
             records["strain"].append(strain)
@@ -156,6 +162,20 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
     return ds
 
 
+def _plane_strain_step(paths: StrainPaths, plane: np.ndarray, step: int, records: dict,
+                       pressure: float) -> np.ndarray:
+    """The strains of the plane-strain trajectories ``plane`` at ``step`` (rows of
+    :func:`plane_strain_rows`, solved with the last converged stress and tangent)."""
+    rows = [plane_strain_rows(paths.parameters[t], step, pressure,
+                              records["stress"][min(paths.parameters[t]["compression_steps"], step - 1)][t])
+            for t in plane]
+    weights, stress_rows, targets = (np.stack(r) for r in zip(*rows))
+    designed_increment = paths.strain[plane, step] - paths.strain[plane, step - 1]
+    largest = 3.0 * max(paths.increment, float(np.abs(designed_increment).max()))
+    return mixed_control(records["strain"][-1][plane], records["stress"][-1][plane], records["tangent"][-1][plane],
+                         designed_increment, weights, stress_rows, targets, largest)
+
+
 def _initial_response(material) -> tuple[np.ndarray, np.ndarray]:
     """Stress and tangent of the consolidated state: the DEM set holds them from loading its
     packings; an analytic set answers a trial at zero strain (repeatable, nothing committed)."""
@@ -187,8 +207,8 @@ def _dataset(paths: StrainPaths, records: dict, lost: np.ndarray, config: dict) 
     return xr.Dataset(
         {
             "strain": (sgc, strain, {"units": "1", "long_name": "total strain the RVE got (tensorial shear): the "
-                                                               "designed one, lateral strains of a triaxial "
-                                                               "trajectory from its servo"}),
+                                                               "designed one; the strains a stress-controlled "
+                                                               "trajectory does not impose from its servo"}),
             "stress": (sgc, stress, {"units": "Pa", "long_name": "RVE stress, tension positive; NaN once lost"}),
             "tangent": (sgt, tangent, {"units": "Pa", "long_name": "upper triangle of the contact-stiffness tangent "
                                                                    "dσ/d(engineering ε); NaN once lost"}),
