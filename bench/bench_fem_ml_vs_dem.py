@@ -113,7 +113,7 @@ def main(argv=None) -> dict:
     dem = per_step(dem_ds)
 
     # -- FEM–ML on the same mesh and path: the pipeline's Newton settings, and FEM–DEM's tolerance
-    from granular_multiscale.surrogate.material import SurrogateMaterial
+    from granular_multiscale.drivers.fem_ml import surrogate_material
 
     overrides = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.ml_newton)}
     ml_config = validate_config({**config, "newton": {**config["newton"], **overrides}})
@@ -126,7 +126,9 @@ def main(argv=None) -> dict:
         if sigma is None:
             sigma, tangent, models_note = surrogate_models(cfg, args.models, ml_problem, logger)
         t0 = time.perf_counter()
-        with SurrogateMaterial.from_files(ml_problem.n_gauss_points, sigma, tangent, tangent="nn") as material:
+        # the pipeline's factory (its surrogate settings: anchoring, surrogate.other_pressure at another
+        # confining pressure), with ND's tangent, which the --ml-newton default is tuned for
+        with surrogate_material(cfg, ml_problem.n_gauss_points, sigma, tangent, "nn", logger) as material:
             start = time.perf_counter() - t0
             try:
                 ds = ml_problem.run(material, path, logger=logger, progress=args.verbose)

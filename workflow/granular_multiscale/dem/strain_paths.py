@@ -38,10 +38,25 @@ plane_strain
     controlled, t·σ·t = −f·p0 and n·σ·t = 0. Phase 2: simple shear in the frame of a band whose
     direction b makes a drawn angle α with n (``band_angle_*``) and whose normal is m: m·ε·b grows in
     the sense of phase 1's shear to a drawn total (``band_shear_*``), b·ε·b is held (a band does not
-    stretch along itself) and m·σ·m keeps the value it had at the switch, so the RVE dilates or
-    compacts as it wants. The designed strain is the imposed part (−s·n⊗n, then the band shear);
+    stretch along itself) and m·σ·m goes from its value at the switch to a drawn share of it
+    (``normal_stress_*_ratio``, over the first ``normal_stress_ramp_fraction`` of the phase: the
+    material beside a band unloads as the specimen softens), so the RVE dilates or compacts as it
+    wants. The share 1 − ``band_probability`` of the trajectories go on with phase 1's control
+    instead, compressing along n by the same total in phase 2: the points of a band that a coarse
+    mesh resolves by whole elements stretch along the band too, as in a long biaxial test. The designed strain is the imposed part (−s·n⊗n, then the band shear);
     the driver chooses the other components (:func:`mixed_control`, rows of
     :func:`plane_strain_rows`).
+isotropic_triaxial
+    A drained triaxial test at another confining pressure, from the consolidated state at p0: phase
+    0 (``isotropic_steps``) takes the three normal stresses linearly from −p0 to −g·p0 with the
+    shear stresses at zero (all six components stress controlled); phase 1 compresses ε33 by
+    ``increment`` per step with unload–reload cycles like the triaxial family while σ11 = σ22 =
+    −g·p0 and the shear stresses vanish. g is drawn per trajectory, log-uniformly in
+    ``pressure_min_fraction..max`` (a specimen at 0.3–4 times the pressure the RVEs were
+    consolidated at). The designed strain is the imposed part, zero in phase 0 and then ε33 =
+    −increment·level (the driver adds each increment to the strain the RVE got, so phase 1 starts
+    from the compacted state); the other components come from :func:`mixed_control` with the rows
+    of :func:`isotropic_triaxial_rows`.
 proportional
     ε(t) = α(t)·n for a random unit direction n of the 6-D strain space: α grows monotonically
     to a drawn amplitude (``min_amplitude_fraction``..1 of the largest the bounds allow along
@@ -71,9 +86,9 @@ from ..config import ConfigError, load_config, merged, rve_paths_section
 from ..tensors import ENGINEERING_FACTOR, tensor_to_voigt, voigt_to_tensor
 from .worker import steps_for_increment
 
-FAMILIES = ("axisymmetric", "random_walk", "proportional", "triaxial", "plane_strain")
+FAMILIES = ("axisymmetric", "random_walk", "proportional", "triaxial", "plane_strain", "isotropic_triaxial")
 #: families whose lateral strains the driver sets from the RVE's response (mixed control)
-STRESS_CONTROLLED = ("triaxial", "plane_strain")
+STRESS_CONTROLLED = ("triaxial", "plane_strain", "isotropic_triaxial")
 #: the plane of the plane-strain problems and family: x (axis 0) and z (axis 2); y is out of plane
 IN_PLANE_X, OUT_OF_PLANE, IN_PLANE_Z = np.eye(3)
 #: absolute slack (strain) of the bound checks: round-off of eigenvalues and sums
@@ -156,7 +171,10 @@ def check_section(section: dict) -> None:
                               ("plane_strain", "lateral_stress_min_fraction", "lateral_stress_max_fraction"),
                               ("plane_strain", "compression_min_fraction", "compression_max_fraction"),
                               ("plane_strain", "band_angle_min", "band_angle_max"),
-                              ("plane_strain", "band_shear_min", "band_shear_max")):
+                              ("plane_strain", "band_shear_min", "band_shear_max"),
+                              ("plane_strain", "normal_stress_min_ratio", "normal_stress_max_ratio"),
+                              ("isotropic_triaxial", "cycles_min", "cycles_max"),
+                              ("isotropic_triaxial", "pressure_min_fraction", "pressure_max_fraction")):
         if section[family][low] > section[family][high]:
             raise ConfigError(f"config key 'rve_paths.{family}.{low}': {section[family][low]} is larger than "
                               f"rve_paths.{family}.{high} = {section[family][high]}")
@@ -202,7 +220,7 @@ def generate(name: str, counts: dict[str, int], n_steps: int, seed: int, increme
              family_settings: dict[str, dict]) -> StrainPaths:
     """The trajectories of every family, in the order of :data:`FAMILIES`; checks the bounds."""
     draw = {"axisymmetric": _axisymmetric, "random_walk": _random_walk, "proportional": _proportional,
-            "triaxial": _triaxial, "plane_strain": _plane_strain}
+            "triaxial": _triaxial, "plane_strain": _plane_strain, "isotropic_triaxial": _isotropic_triaxial}
     strains, families, parameters = [], [], []
     for index, family in enumerate(FAMILIES):
         rng = np.random.default_rng([seed, index])
@@ -273,8 +291,31 @@ def _triaxial(rng, k, count, n_steps, increment, bounds, settings, name):
                     "lateral_stress_fraction": fraction}
 
 
+def _isotropic_triaxial(rng, k, count, n_steps, increment, bounds, settings, name):
+    """The imposed part of a triaxial trajectory at another pressure: zero while the isotropic phase
+    changes the pressure (stress controlled), then ε33 with cycles (lateral strains: the driver)."""
+    n_isotropic = settings["isotropic_steps"]
+    cap = int(math.floor(bounds.max_strain / increment + 1e-9))
+    level = _cycles(rng, n_steps - n_isotropic, cap, settings) if n_isotropic < n_steps else None
+    if level is None:
+        raise ConfigError(
+            f"config key 'rve_paths.sets.{name}.n_steps': {n_steps} steps, {n_isotropic} of them isotropic "
+            f"(rve_paths.isotropic_triaxial.isotropic_steps), leave no room for triaxial increments of {increment:g} "
+            f"with {settings['cycles_min']}..{settings['cycles_max']} unload-reload cycles within |eps33| <= "
+            f"{cap * increment:g}; change n_steps, rve_paths.isotropic_triaxial.isotropic_steps, "
+            f"cycles_min/cycles_max or max_strain")
+    level, reversals = level
+    strain = np.zeros((n_steps + 1, 6))
+    strain[n_isotropic:, 2] = -increment * level
+    fraction = float(np.exp(rng.uniform(math.log(settings["pressure_min_fraction"]),
+                                        math.log(settings["pressure_max_fraction"]))))
+    return strain, {"sense": "compression", "pressure_fraction": fraction, "isotropic_steps": n_isotropic,
+                    "reversal_steps": [n_isotropic + r for r in reversals], "largest_level": int(level.max())}
+
+
 def _plane_strain(rng, k, count, n_steps, increment, bounds, settings, name):
-    """The imposed part of a plane-strain trajectory: −s·n⊗n with cycles, then the band shear."""
+    """The imposed part of a plane-strain trajectory: −s·n⊗n with cycles, then the band shear (or,
+    in the share 1 − ``band_probability``, the compression along n goes on as far)."""
     n_compression = int(round(rng.uniform(settings["compression_min_fraction"],
                                           settings["compression_max_fraction"]) * n_steps))
     n_compression = min(max(n_compression, 1), n_steps - 1)
@@ -291,15 +332,24 @@ def _plane_strain(rng, k, count, n_steps, increment, bounds, settings, name):
     band_angle = float(rng.uniform(settings["band_angle_min"], settings["band_angle_max"]) * rng.choice([-1.0, 1.0]))
     fraction = float(rng.uniform(settings["lateral_stress_min_fraction"], settings["lateral_stress_max_fraction"]))
     band_shear = float(rng.uniform(settings["band_shear_min"], settings["band_shear_max"]))
+    normal_ratio = float(rng.uniform(settings["normal_stress_min_ratio"], settings["normal_stress_max_ratio"]))
+    band = bool(rng.random() < settings["band_probability"])
     n, t, m, b = plane_strain_frame(axis_angle, band_angle)
     strain = np.zeros((n_steps + 1, 6))
     strain[:n_compression + 1] = -increment * level[:, None] * _dyad(n, n)[None, :]
-    # phase 2: m·ε·b grows in the sense phase 1 sheared it (m·(−s n⊗n)·b = s·sin α·cos α)
-    shear = np.sign(band_angle) * band_shear * np.arange(1, n_steps - n_compression + 1) / (n_steps - n_compression)
-    strain[n_compression + 1:] = strain[n_compression] + shear[:, None] * (_dyad(m, b) + _dyad(b, m))[None, :]
+    progress = np.arange(1, n_steps - n_compression + 1) / (n_steps - n_compression)
+    if band:  # m·ε·b grows in the sense phase 1 sheared it (m·(−s n⊗n)·b = s·sin α·cos α)
+        second = np.sign(band_angle) * band_shear * progress[:, None] * (_dyad(m, b) + _dyad(b, m))[None, :]
+    else:  # the biaxial compression goes on, by band_shear along n
+        second = -band_shear * progress[:, None] * _dyad(n, n)[None, :]
+    strain[n_compression + 1:] = strain[n_compression] + second
     return strain, {"sense": "compression", "reversal_steps": reversals, "largest_level": int(level.max()),
                     "lateral_stress_fraction": fraction, "axis_angle": axis_angle, "band_angle": band_angle,
-                    "band_shear": band_shear, "compression_steps": n_compression}
+                    "second_phase": "band" if band else "biaxial",
+                    "band_shear": band_shear, "normal_stress_ratio": normal_ratio,
+                    "normal_stress_ramp_steps": max(1, round(settings["normal_stress_ramp_fraction"]
+                                                             * (n_steps - n_compression))),
+                    "compression_steps": n_compression}
 
 
 def plane_strain_frame(axis_angle: float, band_angle: float) -> tuple[np.ndarray, ...]:
@@ -330,21 +380,42 @@ def plane_strain_rows(parameters: dict, step: int, pressure: float,
     """The six conditions a plane-strain trajectory's increment step−1 → step satisfies, as rows of
     :func:`mixed_control`: weights [6, 6], which rows are stress rows [6], and their stress targets
     [6] (a strain row takes its increment from the designed strain). ``pressure``: p0;
-    ``stress_at_switch``: the converged stress at the last compression step, whose m·σ·m the band
-    phase holds."""
+    ``stress_at_switch``: the converged stress at the last compression step; the band phase takes its
+    m·σ·m to ``normal_stress_ratio`` times that value over its first ``normal_stress_ramp_steps``
+    (linearly) and holds it there (the material beside a band unloads as the specimen softens)."""
     n, t, m, b = plane_strain_frame(parameters["axis_angle"], parameters["band_angle"])
     rows = [contraction(OUT_OF_PLANE, OUT_OF_PLANE), contraction(IN_PLANE_X, OUT_OF_PLANE),
             contraction(OUT_OF_PLANE, IN_PLANE_Z)]  # plane strain: ε22 = ε12 = ε23 = 0
     targets = np.zeros(6)
-    if step <= parameters["compression_steps"]:  # ε_nn imposed; σ_tt = −f·p0, σ_nt = 0
+    if step <= parameters["compression_steps"] or parameters["second_phase"] == "biaxial":
+        # ε_nn imposed; σ_tt = −f·p0, σ_nt = 0
         rows += [contraction(n, n), contraction(t, t), contraction(n, t)]
         stress_rows = np.array([False, False, False, False, True, True])
         targets[4] = -parameters["lateral_stress_fraction"] * pressure
-    else:  # ε_bb held, ε_mb imposed; σ_mm as at the switch
+    else:  # ε_bb held, ε_mb imposed; σ_mm from its value at the switch to a drawn share of it
         rows += [contraction(b, b), contraction(m, b), contraction(m, m)]
         stress_rows = np.array([False, False, False, False, False, True])
-        targets[5] = contraction(m, m) @ stress_at_switch
+        ramp = min(1.0, (step - parameters["compression_steps"]) / parameters["normal_stress_ramp_steps"])
+        targets[5] = (1.0 + (parameters["normal_stress_ratio"] - 1.0) * ramp) * (contraction(m, m) @ stress_at_switch)
     return np.array(rows), stress_rows, targets
+
+
+def isotropic_triaxial_rows(parameters: dict, step: int, pressure: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The six conditions an isotropic-triaxial trajectory's increment step−1 → step satisfies, as
+    rows of :func:`mixed_control` (weights [6, 6]: the Voigt components themselves; which rows are
+    stress rows [6]; their stress targets [6]). ``pressure``: p0. Phase 0 (steps 1..isotropic_steps):
+    every component stress controlled, the normal stresses at step/isotropic_steps of the way from
+    −p0 to −g·p0, the shear stresses 0. Phase 1: ε33 imposed (the designed increment), σ11 = σ22 =
+    −g·p0, shear stresses 0."""
+    g, n_isotropic = parameters["pressure_fraction"], parameters["isotropic_steps"]
+    targets = np.zeros(6)
+    if step <= n_isotropic:
+        stress_rows = np.ones(6, dtype=bool)
+        targets[:3] = -pressure * (1.0 + (g - 1.0) * step / n_isotropic)
+    else:
+        stress_rows = np.array([True, True, False, True, True, True])
+        targets[:2] = -g * pressure
+    return np.eye(6), stress_rows, targets
 
 
 def mixed_control(strain: np.ndarray, stress: np.ndarray, tangent: np.ndarray, designed_increment: np.ndarray,

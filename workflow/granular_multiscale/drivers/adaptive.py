@@ -231,6 +231,7 @@ def dem_trajectories(material: AdaptiveMaterialPointSet, problem: BoundaryValueP
             "adaptive_indicator": material.indicator,
             "n_points": material.n_points,
             "n_dem_points": int(points.size),
+            "confining_pressure_Pa": float(problem.confining_pressure),
             "step_meaning": "commit of the solver, from that of load step 0 (the consolidated state) on; "
                             "= the load step without cut-backs",
         },

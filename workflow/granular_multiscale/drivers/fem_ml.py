@@ -12,12 +12,19 @@ solver returns, from what the material set recorded at each commit (:func:`sprea
 floor being the norm of the consolidated stress −p0·1. Attribute ``ensemble_size``; with K = 1
 both variables are 0. Under ``specimen.uniform_field`` the material set has one point (the
 problem's ``n_material_points``), whose spread stands for every Gauss point.
+
+A specimen at another confining pressure than the networks' training RVEs (``surrogate.other_pressure``,
+:func:`at_specimen_pressure`): ``offset`` runs the networks as they are, anchored to their training
+data's fresh state; ``isotropic_prestrain`` first takes them along an isotropic strain to the
+specimen's pressure (:class:`~granular_multiscale.materials.wrappers.IsotropicPrestrain`). The solver
+sees a material-point set either way.
 """
 
 from __future__ import annotations
 
 import copy
 import logging
+import math
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +32,8 @@ import torch
 import xarray as xr
 
 from ..fem.newton import ConvergenceError
+from ..materials.base import MaterialPointSet
+from ..materials.wrappers import IsotropicPrestrain
 from ..surrogate.material import SurrogateMaterial, relative_spread, spread_floor
 from .problems import problem_and_path
 
@@ -81,11 +90,15 @@ def run_fem_ml(
     return ds
 
 
+OTHER_PRESSURE = ("offset", "isotropic_prestrain")
+
+
 def surrogate_material(config: dict, n_points: int, sigma_model, tangent_model, tangent: str,
-                       logger: logging.Logger | None = None) -> SurrogateMaterial:
-    """The networks of the model files as a material-point set, with the `surrogate` settings of the config."""
+                       logger: logging.Logger | None = None) -> MaterialPointSet:
+    """The networks of the model files as a material-point set, with the `surrogate` settings of the
+    config, at the specimen's confining pressure (:func:`at_specimen_pressure`)."""
     torch.set_num_threads(int(config["surrogate"]["torch_threads"]))
-    return SurrogateMaterial.from_files(
+    material = SurrogateMaterial.from_files(
         n_points,
         sigma_model,
         tangent_model,
@@ -94,11 +107,43 @@ def surrogate_material(config: dict, n_points: int, sigma_model, tangent_model, 
         logger=logger,
         anchor_initial_state=bool(config["surrogate"]["anchor_initial_state"]),
     )
+    return at_specimen_pressure(material, float(config["specimen"]["confining_pressure"]),
+                                config["surrogate"]["other_pressure"], logger)
 
 
-def surrogate_attributes(material: SurrogateMaterial, sigma_model, tangent_model) -> dict:
-    """Run-file attributes that say which networks sat at the Gauss points."""
-    return {
+def at_specimen_pressure(material: SurrogateMaterial, pressure: float, other_pressure: str,
+                         logger: logging.Logger | None = None) -> MaterialPointSet:
+    """The networks for a specimen confined at `pressure` (Pa). At the pressure they were trained at
+    (``SurrogateModel.training_pressure``; a model file that does not know it is taken to have been
+    trained at `pressure`, with a warning) they are returned as they are. At another one,
+    `other_pressure` (config ``surrogate.other_pressure``) decides: ``offset`` leaves them anchored
+    to their training data's fresh state, ``isotropic_prestrain`` wraps them in
+    :class:`IsotropicPrestrain` (an isotropic strain to `pressure`, then −pressure·1 at zero strain)."""
+    logger = logger or logging.getLogger("granular_multiscale.fem_ml")
+    if other_pressure not in OTHER_PRESSURE:
+        raise ValueError(f"config key 'surrogate.other_pressure' must be one of {OTHER_PRESSURE}, got {other_pressure!r}")
+    trained = material.sigma_model.training_pressure
+    if trained is None:
+        logger.warning("the NNσ model file records no confining pressure of its training RVEs (trained before it "
+                       "was recorded, or from sources that record none or differ): taken to be the specimen's, %g Pa",
+                       pressure)
+        trained = pressure
+    if math.isclose(trained, pressure, rel_tol=1e-9):
+        return material
+    if other_pressure == "offset":
+        logger.warning("networks trained at a confining pressure of %g Pa on a specimen at %g Pa, "
+                       "surrogate.other_pressure 'offset': the Gauss points start from the training data's "
+                       "consolidated stress", trained, pressure)
+        return material
+    logger.info("networks trained at a confining pressure of %g Pa on a specimen at %g Pa: isotropic prestrain",
+                trained, pressure)
+    return IsotropicPrestrain(material, pressure, logger=logger)
+
+
+def surrogate_attributes(material: MaterialPointSet, sigma_model, tangent_model) -> dict:
+    """Run-file attributes that say which networks sat at the Gauss points (and, prestrained to
+    another pressure, how far and with what stress offset)."""
+    attributes = {
         "ensemble_size": material.ensemble_size,
         "surrogate_tangent": material.tangent,
         "surrogate_use_history": int(material.use_history),
@@ -107,6 +152,14 @@ def surrogate_attributes(material: SurrogateMaterial, sigma_model, tangent_model
         "surrogate_features": ",".join(material.feature_names),
         "surrogate_anchor_initial_state": int(material.anchor_initial_state),
     }
+    trained = material.sigma_model.training_pressure
+    if trained is not None:
+        attributes["surrogate_training_pressure_Pa"] = trained
+    if isinstance(material, IsotropicPrestrain):
+        attributes.update({"surrogate_prestrain_pressure_Pa": material.pressure,
+                           "surrogate_prestrain": float(material.prestrain[:, 0].mean()),
+                           "surrogate_prestrain_offset_Pa": material.offset_norm})
+    return attributes
 
 
 def commits_of_steps(ds: xr.Dataset, commits: int) -> np.ndarray:

@@ -3,11 +3,12 @@
     run_rve_paths(config, set_name, packing_paths, output, checkpoint, n_workers, logger)
 
 One trajectory of ``dem.strain_paths`` per material point; at every step one ``evaluate`` (the
-designed strain; for the stress-controlled families, triaxial and plane_strain, the strains they do
-not impose are solved from the last converged stress and tangent) and one ``commit``. The points are those of the reference material
-(``reference_material``): YADE RVEs of a :class:`DemMaterialPointSet`, or the analytic
-elastoplastic model (the fast stand-in of the tests and ``config/elastoplastic.yaml``). The file follows the data contract
-with one ``gp`` per trajectory (``data.RVE_PATHS_VARIABLES``).
+designed strain; for the stress-controlled families, triaxial, plane_strain and isotropic_triaxial,
+the strains they do not impose are solved from the last converged stress and tangent) and one
+``commit``. The points are those of the reference material (``reference_material``): YADE RVEs of
+a :class:`DemMaterialPointSet`, or the analytic elastoplastic model (the fast stand-in of the tests
+and ``config/elastoplastic.yaml``). The file follows the data contract with one ``gp`` per
+trajectory (``data.RVE_PATHS_VARIABLES``).
 
 Contact loss (``rve_paths.contact_loss``): an RVE whose mean stress p = −tr σ/3 falls below
 ``min_mean_stress_fraction`` × the confining pressure, or whose contact-stiffness tangent is not
@@ -35,8 +36,8 @@ import xarray as xr
 from .. import checkpoint as checkpoints, integrity
 from ..data import RVE_PATHS_VARIABLES, write_run
 from ..dem.material import DemMaterialPointSet
-from ..dem.strain_paths import (StrainPaths, lateral_servo, mixed_control, plane_strain_rows, set_definition,
-                                set_section, strain_paths_from_config)
+from ..dem.strain_paths import (StrainPaths, isotropic_triaxial_rows, lateral_servo, mixed_control,
+                                plane_strain_rows, set_definition, set_section, strain_paths_from_config)
 from ..materials import make_material
 from ..history import HIST, history_from_sequence
 from ..tensors import COMP, TCOMP, tangent_to_upper
@@ -113,6 +114,7 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
         servo = paths.family == "triaxial"
         lateral_stress = -pressure * np.array([p.get("lateral_stress_fraction", 1.0) for p in paths.parameters])
         plane = np.flatnonzero(paths.family == "plane_strain")
+        isotropic = np.flatnonzero(paths.family == "isotropic_triaxial")
         for step in range(first, n_steps + 1):
             t_step = time.perf_counter()
             strain = paths.strain[:, step].copy()
@@ -124,7 +126,13 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
                     paths.strain[servo, step, 2] - paths.strain[servo, step - 1, 2], lateral_stress[servo],
                     largest=3.0 * paths.increment)
             if plane.size:
-                strain[plane] = _plane_strain_step(paths, plane, step, records, pressure)
+                strain[plane] = _mixed_control_step(paths, plane, step, records, [
+                    plane_strain_rows(paths.parameters[t], step, pressure,
+                                      records["stress"][min(paths.parameters[t]["compression_steps"], step - 1)][t])
+                    for t in plane])
+            if isotropic.size:
+                strain[isotropic] = _mixed_control_step(paths, isotropic, step, records, [
+                    isotropic_triaxial_rows(paths.parameters[t], step, pressure) for t in isotropic])
             stress, tangent = material.evaluate(strain)
             material.commit()
             records["strain"].append(strain)
@@ -162,17 +170,18 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
     return ds
 
 
-def _plane_strain_step(paths: StrainPaths, plane: np.ndarray, step: int, records: dict,
-                       pressure: float) -> np.ndarray:
-    """The strains of the plane-strain trajectories ``plane`` at ``step`` (rows of
-    :func:`plane_strain_rows`, solved with the last converged stress and tangent)."""
-    rows = [plane_strain_rows(paths.parameters[t], step, pressure,
-                              records["stress"][min(paths.parameters[t]["compression_steps"], step - 1)][t])
-            for t in plane]
+def _mixed_control_step(paths: StrainPaths, points: np.ndarray, step: int, records: dict,
+                        rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> np.ndarray:
+    """The strains of the trajectories ``points`` at ``step`` under their conditions ``rows`` (one
+    (weights, stress rows, targets) per point, as :func:`plane_strain_rows` gives them), solved with
+    the last converged stress and tangent."""
     weights, stress_rows, targets = (np.stack(r) for r in zip(*rows))
-    designed_increment = paths.strain[plane, step] - paths.strain[plane, step - 1]
+    designed_increment = paths.strain[points, step] - paths.strain[points, step - 1]
+    # a stress target moves the free strains by a few designed increments at most; the isotropic
+    # phase has no designed increment, and its steps must fit under the clip too: 4·p0 in ten steps is
+    # 1.7e-3 a step for the elastoplastic model (tested), under 3·increment at the default 1e-3
     largest = 3.0 * max(paths.increment, float(np.abs(designed_increment).max()))
-    return mixed_control(records["strain"][-1][plane], records["stress"][-1][plane], records["tangent"][-1][plane],
+    return mixed_control(records["strain"][-1][points], records["stress"][-1][points], records["tangent"][-1][points],
                          designed_increment, weights, stress_rows, targets, largest)
 
 

@@ -10,7 +10,10 @@ solver sees, never the solver.
   zone that triggers a shear band) answered by a material set of their own;
 * :class:`UniformField` — a homogeneous scene (smooth platens, uniform material): one
   material point is evaluated and its answer broadcast to every Gauss point; a trial field
-  that is not uniform stops the run with :class:`NonUniformFieldError`.
+  that is not uniform stops the run with :class:`NonUniformFieldError`;
+* :class:`IsotropicPrestrain` — a set consolidated at one pressure (networks trained on RVEs
+  at p0) taken by an isotropic strain to another confining pressure before the solver starts,
+  the solver's strain measured from there;
 
 and the diagnostics :func:`non_spd_mask`, :func:`non_spd_share`, :func:`non_spd_per_step`.
 
@@ -23,6 +26,7 @@ directions differently). A non-symmetric D is positive definite when its symmetr
 
 from __future__ import annotations
 
+import logging
 import zlib
 from pathlib import Path
 from typing import Any
@@ -30,9 +34,10 @@ from typing import Any
 import numpy as np
 
 from ..tensors import tangent_from_upper
-from .base import MaterialPointSet
+from .base import MaterialPointError, MaterialPointSet
 
 _S = np.array([1.0, 1.0, 1.0, np.sqrt(2.0), np.sqrt(2.0), np.sqrt(2.0)])
+_ONE = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
 REPAIRS = ("none", "eig_floor")
 
 
@@ -266,6 +271,148 @@ class UniformField(MaterialWrapper):
             strain = self._check_strain(strain)
             strain = strain.mean(axis=0)[None, :]  # the one point's strain, as evaluate passed it
         self.inner.commit(strain)
+
+
+class IsotropicPrestrain(MaterialWrapper):
+    """The inner set taken along an isotropic strain to the mean stress ``pressure`` (Pa, compression
+    positive), and measured from there: what lets networks trained on RVEs consolidated at p0 start
+    a specimen confined at another pressure.
+
+    On construction, per point, the isotropic strain e0·(1, 1, 1, 0, 0, 0) at which the inner
+    set's mean stress −tr σ/3 is ``pressure`` (within ``tolerance`` × pressure) is found from trial
+    evaluations alone (nothing committed while searching): a bracket grown from e = 0 in the sense
+    that moves the mean stress towards the target (e < 0 compresses), within |e| ≤ ``max_prestrain``
+    (smaller steps where the inner set fails, e.g. past a cone's apex), then regula falsi (Illinois)
+    inside it. That state is then evaluated and committed once: the
+    path to it is monotonic, so its state (a surrogate's history variables included) is the same in
+    one step as in many. Afterwards, for the solver's strain ε,
+
+        σ(ε) = σ_inner(e0·1 + ε) + offset,   offset = −pressure·1 − σ_inner(e0·1),   D(ε) = D_inner(e0·1 + ε)
+
+    so that ε = 0 gives −pressure·1, the state the specimen starts from in equilibrium with its
+    confining traction. The offset is a constant per point: what the search leaves of the mean
+    stress (below the tolerance) and the deviatoric stress of the inner set at e0 (a fresh state
+    that is not quite isotropic, a network's error along the path); its largest norm is
+    :attr:`offset_norm` and is logged. A record the inner set keeps per commit (a surrogate's
+    ensemble spread, :attr:`stress_spread`) is given from the solver's first commit on, without the
+    commits up to the prestrain, one entry per commit of the solver."""
+
+    def __init__(self, inner: MaterialPointSet, pressure: float, logger: logging.Logger | None = None,
+                 tolerance: float = 1e-6, max_prestrain: float = 0.05, max_iterations: int = 200):
+        super().__init__(inner)
+        if not (np.isfinite(pressure) and pressure > 0):
+            raise ValueError(f"isotropic prestrain: the target pressure must be a positive number of Pa, got {pressure}")
+        self.pressure = float(pressure)
+        self.logger = logger or logging.getLogger(__name__)
+        e0 = self._prestrain(tolerance * self.pressure, max_prestrain, max_iterations)
+        self.prestrain = e0[:, None] * _ONE
+        stress, _ = self.inner.evaluate(self.prestrain, need_tangent=False)
+        self.inner.commit(self.prestrain)
+        self._commits_before_solver = len(getattr(self.inner, "stress_spread", ()))
+        self.offset = -self.pressure * _ONE - stress
+        mean = -stress[:, :3].sum(axis=1) / 3.0
+        self.logger.info(
+            "isotropic prestrain to %.6g Pa: e0 %.4g..%.4g (tr eps %.4g..%.4g), inner mean stress %.6g..%.6g Pa, "
+            "stress offset up to %.3g Pa (tensor norm)", self.pressure, e0.min(), e0.max(), 3 * e0.min(), 3 * e0.max(),
+            mean.min(), mean.max(), self.offset_norm)
+
+    @property
+    def offset_norm(self) -> float:
+        """Pa: the largest tensor norm of the stress offset over the points (shear counted twice)."""
+        return float(np.sqrt((self.offset**2 * np.array([1.0, 1, 1, 2, 2, 2])).sum(axis=1)).max())
+
+    def _mean_stress(self, e: np.ndarray) -> np.ndarray:
+        stress, _ = self.inner.evaluate(e[:, None] * _ONE, need_tangent=False)
+        return -stress[:, :3].sum(axis=1) / 3.0
+
+    def _prestrain(self, tolerance: float, max_prestrain: float, max_iterations: int) -> np.ndarray:
+        """[n] e0 with |mean stress(e0·1) − pressure| <= tolerance at every point (trial evaluations only)."""
+        n = self.n_points
+        near, f_near = np.zeros(n), self._mean_stress(np.zeros(n)) - self.pressure
+        done = np.abs(f_near) <= tolerance
+        sense = np.where(f_near < 0, -1.0, 1.0)  # compression (e < 0) raises the mean stress
+        far, f_far = near.copy(), f_near.copy()
+        step = np.full(n, 1e-4)
+        bracketed = done.copy()
+        for _ in range(max_iterations):  # grow the bracket from 0
+            growing = ~bracketed
+            if not growing.any():
+                break
+            trial = np.where(growing, np.clip(near + sense * step, -max_prestrain, max_prestrain), near)
+            try:
+                f = self._mean_stress(trial) - self.pressure
+            except MaterialPointError:  # past what the inner set answers (e.g. tension): smaller steps
+                step = np.where(growing, 0.5 * step, step)
+                continue
+            crossed = growing & (np.sign(f) != np.sign(f_near))
+            far, f_far = np.where(crossed, trial, far), np.where(crossed, f, f_far)
+            bracketed |= crossed
+            short = growing & ~crossed
+            near, f_near = np.where(short, trial, near), np.where(short, f, f_near)
+            if (short & (np.abs(trial) >= max_prestrain)).any():
+                break
+            step = np.where(short, 2.0 * step, step)
+        if not bracketed.all():
+            first = np.flatnonzero(~bracketed)
+            raise ValueError(
+                f"isotropic prestrain: no isotropic strain |e| <= {max_prestrain:g} brings the mean stress of "
+                f"{self.method} to the target pressure {self.pressure:g} Pa (Gauss points {first[:10].tolist()}; "
+                f"point {first[0]}: {f_near[first[0]] + self.pressure:.6g} Pa at e = {near[first[0]]:.4g}): this "
+                "material cannot be brought to that confining pressure")
+        # regula falsi with the Illinois halving, inside [near, far] per point, from the better end
+        better = np.abs(f_far) < np.abs(f_near)
+        e, f_e = np.where(better, far, near), np.where(better, f_far, f_near)
+        done = np.abs(f_e) <= tolerance
+        for _ in range(max_iterations):
+            if done.all():
+                break
+            secant = far - f_far * (far - near) / np.where(f_far != f_near, f_far - f_near, 1.0)
+            inside = (secant - near) * (secant - far) < 0
+            trial = np.where(done, e, np.where(inside, secant, 0.5 * (near + far)))
+            f = self._mean_stress(trial) - self.pressure
+            update = ~done
+            e, f_e = np.where(update, trial, e), np.where(update, f, f_e)
+            done |= np.abs(f_e) <= tolerance
+            switch = update & (np.sign(f) != np.sign(f_far))  # the root is between the trial and far
+            f_near = np.where(update & ~switch, 0.5 * f_near, f_near)  # Illinois: the stale end loses weight
+            near, f_near = np.where(switch, far, near), np.where(switch, f_far, f_near)
+            far, f_far = np.where(update, trial, far), np.where(update, f, f_far)
+        if not done.all():
+            raise ValueError(
+                f"isotropic prestrain: the mean stress of {self.method} did not come within {tolerance:.3g} Pa of the "
+                f"target pressure {self.pressure:g} Pa in {max_iterations} iterations (Gauss points "
+                f"{np.flatnonzero(~done)[:10].tolist()}; a response that jumps across the target?)")
+        return e
+
+    def evaluate(self, strain, need_tangent: bool = True):
+        strain = self._check_strain(strain)
+        stress, tangent = self.inner.evaluate(self.prestrain + strain, need_tangent=need_tangent)
+        return stress + self.offset, tangent
+
+    def commit(self, strain=None) -> None:
+        self.inner.commit(None if strain is None else self.prestrain + self._check_strain(strain))
+
+    def checkpoint_key(self) -> dict:
+        return {"inner": self.inner.checkpoint_key(), "isotropic_prestrain_pressure": self.pressure}
+
+    def get_state(self) -> dict[str, Any]:
+        return {"inner": self.inner.get_state(), "pressure": self.pressure, "prestrain": self.prestrain.copy(),
+                "offset": self.offset.copy()}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        if state.get("pressure") != self.pressure:
+            raise ValueError(f"the checkpoint's material was prestrained to {state.get('pressure')} Pa, this run's "
+                             f"to {self.pressure} Pa")
+        prestrain, offset = (np.asarray(state[k], dtype=float) for k in ("prestrain", "offset"))
+        if prestrain.shape != (self.n_points, 6) or offset.shape != (self.n_points, 6):
+            raise ValueError(f"isotropic prestrain state for {prestrain.shape[0]} points, this set has {self.n_points}")
+        self.inner.set_state(state["inner"])
+        self.prestrain, self.offset = prestrain.copy(), offset.copy()
+
+    @property
+    def stress_spread(self) -> np.ndarray:
+        """The inner set's per-commit ensemble spread from the solver's first commit on."""
+        return self.inner.stress_spread[self._commits_before_solver:]
 
 
 class Zoned(MaterialPointSet):

@@ -230,6 +230,16 @@ def _pad(values: np.ndarray, n_steps: int, fill) -> np.ndarray:
     return np.concatenate([values, tail.astype(values.dtype)])
 
 
+def source_pressure(run: xr.Dataset) -> float | None:
+    """Pa: the confining pressure a source's material points were consolidated at, as the source
+    records it (a FEM run's or an adaptive run's RVEs' ``confining_pressure_Pa``, an RVE-path set's
+    ``confining_pressure``); None if it records none."""
+    for key in ("confining_pressure_Pa", "confining_pressure"):
+        if key in run.attrs:
+            return float(run.attrs[key])
+    return None
+
+
 def build_dataset(run: xr.Dataset, train_fraction: float, seed: int, source: str = "reference run",
                   split: str = "random", history_tolerance: float = 0.0) -> tuple[xr.Dataset, xr.Dataset]:
     """One reference run (data contract) -> (train, held-out) datasets; see :func:`build_dataset_from_sources`.
@@ -355,6 +365,10 @@ def build_dataset_from_sources(sources, train_fraction: float, seed: int, split:
     }
     if "config" in first.attrs:
         attrs["source_config"] = first.attrs["config"]
+    # what the networks will take for their pressure: one, when every source that records one agrees
+    pressures = {p for p in (source_pressure(run) for _, run in sources) if p is not None}
+    if len(pressures) == 1:
+        attrs["confining_pressure_Pa"] = pressures.pop()
     train = base.isel(gp=train_idx).assign_attrs(attrs, split="train")
     heldout = base.isel(gp=heldout_idx).assign_attrs(attrs, split="heldout")
     return train, heldout

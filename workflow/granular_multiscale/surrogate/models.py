@@ -302,6 +302,18 @@ class SurrogateModel:
     def n_features(self) -> int:
         return len(self.feature_names)
 
+    @property
+    def training_pressure(self) -> float | None:
+        """Pa: the confining pressure the training RVEs were consolidated at, as training recorded it
+        from its dataset; for a model file written before that record, the specimen pressure of the
+        config it was trained under (a pipeline's sources share it); None if it knows neither (or its
+        sources recorded none, or different ones)."""
+        if "confining_pressure_Pa" in self.training:
+            recorded = self.training["confining_pressure_Pa"]
+            return None if recorded is None else float(recorded)
+        pressure = (self.config.get("specimen") or {}).get("confining_pressure")
+        return None if pressure is None else float(pressure)
+
     def initial_offset(self, per_member: bool = False) -> np.ndarray:
         """Targets minus the network's prediction at the fresh state (zero strain, zero history).
 

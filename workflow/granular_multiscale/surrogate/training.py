@@ -216,6 +216,10 @@ def train(
         "heldout_gp": np.asarray(heldout_ds.gp.values).tolist(),
         "wall_time_s": wall_time,
         "torch_version": torch.__version__,
+        # the pressure the training RVEs were consolidated at (None: the dataset's sources record none,
+        # or differ); FEM–ML compares it with the specimen's (surrogate.other_pressure)
+        "confining_pressure_Pa": (float(train_ds.attrs["confining_pressure_Pa"])
+                                  if "confining_pressure_Pa" in train_ds.attrs else None),
     }
     return model, pd.concat(losses, ignore_index=True), mae
 
