@@ -19,8 +19,10 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
+from granular_multiscale.analysis.quantities import equivalent_shear_strain
 from granular_multiscale.analysis.tables import benchmark_seconds
 from granular_multiscale.data import read_run
 from granular_multiscale.plan import Plan
@@ -74,7 +76,8 @@ def dem_work(plan: Plan) -> dict[str, dict]:
 
 def rve_path_sets(plan: Plan) -> dict[str, dict]:
     """What each RVE-path set holds: trajectories per family, steps, evaluations, lost contacts,
-    and the largest axial and lateral strains (% , compression positive) its valid states reach."""
+    and the largest axial and lateral strains (% , compression positive) and equivalent shear
+    strain ε_s its valid states reach."""
     sets = {}
     for name in plan.rve_path_sets:
         file = Path(plan.layout.rve_paths(name))
@@ -87,7 +90,8 @@ def rve_path_sets(plan: Plan) -> dict[str, dict]:
                       "evaluations": int(run.attrs["rve_evaluations"]), "lost_contact": int(run.attrs["n_lost_contact"]),
                       "families": {family: int(n) for family, n in families.items()},
                       "largest_axial_strain_pct": round(100 * float(abs(strain.isel(comp=2)).max()), 2),
-                      "largest_lateral_strain_pct": round(100 * float(abs(strain.isel(comp=[0, 1])).max()), 2)}
+                      "largest_lateral_strain_pct": round(100 * float(abs(strain.isel(comp=[0, 1])).max()), 2),
+                      "largest_shear_strain_pct": round(100 * float(np.nanmax(equivalent_shear_strain(strain.values))), 2)}
     return sets
 
 

@@ -276,8 +276,9 @@ def render_rve_paths(record: dict) -> str:
                             if key.startswith("rve_paths/")) + " (wall, 2 workers).\n")
     reference = f["dem_work"]["fem_dem/path1"]["particle_steps"]
     lines = [f"{label}, the default training sources (`rve_paths.sets`):", "",
-             "| set | trajectories | evaluations | particle-steps | wall | largest axial / lateral strain | lost contact |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
+             "| set | trajectories | evaluations | particle-steps | wall | largest axial / lateral strain "
+             "| largest ε_s | lost contact |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     total = 0
     for name, s in f["rve_paths"].items():
         work = f["dem_work"][f"rve_paths/{name}"]
@@ -285,7 +286,8 @@ def render_rve_paths(record: dict) -> str:
         families = ", ".join(f"{n} {family.replace('_', ' ')}" for family, n in s["families"].items())
         lines.append(f"| `{name}` | {families} × {s['steps']} steps | {s['evaluations']} | {work['particle_steps']:.2e} | "
                      f"{f['rules_wall_s'].get(f'rve_paths/{name}', work['wall_s']):.0f} s | "
-                     f"{s['largest_axial_strain_pct']:.1f} % / {s['largest_lateral_strain_pct']:.1f} % | {s['lost_contact']} |")
+                     f"{s['largest_axial_strain_pct']:.1f} % / {s['largest_lateral_strain_pct']:.1f} % | "
+                     f"{s['largest_shear_strain_pct']:.1f} % | {s['lost_contact']} |")
     lines += ["", f"Together {total:.2e} particle-steps, {100 * total / reference:.0f} % of FEM–DEM Path1's."]
     return "\n".join(lines) + "\n"
 

@@ -49,13 +49,14 @@ def test_a_bench_record_goes_under_the_output_dir():
 def test_the_default_scale_trains_on_path1_and_rve_paths_and_validates_on_path2():
     plan = plan_of("config.yaml")
     assert plan.reference == "fem_dem" and plan.path_names == ["path1", "path2"]
-    assert plan.training_run_paths == ["path1"] and plan.training_rve_sets == ["designed", "long"]
+    assert plan.training_run_paths == ["path1"] and plan.training_rve_sets == ["designed", "long", "band", "pressure"]
     assert plan.validation_paths == ["path2"] and plan.ml_paths == ["path2", "path1"]
     sources, networks = plan.training_rounds()[""]
-    assert sources == ["out/fem_dem/path1.h5", "out/rve_paths/designed.h5", "out/rve_paths/long.h5"]
+    assert sources == ["out/fem_dem/path1.h5", "out/rve_paths/designed.h5", "out/rve_paths/long.h5",
+                       "out/rve_paths/band.h5", "out/rve_paths/pressure.h5"]
     assert networks == NETWORKS
     active_sources, active_networks = plan.training_rounds()["active/"]
-    assert active_sources[:3] == sources and active_sources[3:] == ["out/adaptive/t0.01/dem_points/path2.h5"]
+    assert active_sources[:-1] == sources and active_sources[-1:] == ["out/adaptive/t0.01/dem_points/path2.h5"]
     assert list(active_networks) == ["sigma", "tangent"]
     assert plan.validation_cases() == {"path2": "validation path", "path1": "training path"}
 
@@ -84,34 +85,39 @@ def test_labels_and_run_sets_of_the_products():
 
 
 def test_the_surrogate_on_the_problems_beside_its_controls():
-    """Default scale: per problem the reference, FEM–ML, the analytic model alone, the adaptive run and its
-    control, and the products of each; the tiny scale (no adaptive report) keeps the runs without DEM."""
-    plan = plan_of("config.yaml", adaptive={"report": True, "problems": True})
+    """Default scale: per problem the reference, FEM–ML, the analytic model alone, the adaptive run (no
+    promotions: DEM at the weak zone only) and its control, and the products of each; the tiny scale
+    (no adaptive report) keeps the runs without DEM."""
+    plan = plan_of("config.yaml")  # adaptive.problems at threshold .inf: DEM at the weak zone only
     assert list(plan.problem_comparison("biaxial", "biaxial").items()) == [
         ("FEM–DEM (400 spheres)", "out/biaxial/fem_dem/biaxial.h5"),
         ("FEM–ML (autodiff tangent)", "out/biaxial/fem_ml/biaxial.h5"),
         ("FEM, elastoplastic model fitted to Path1 (no networks)", "out/biaxial/fem_elastoplastic/biaxial.h5"),
-        ("adaptive FEM–DEM–ML, threshold 0.02", "out/biaxial/adaptive_t0.02/biaxial.h5"),
+        ("adaptive FEM–DEM–ML, no promotions (DEM at the anchors)", "out/biaxial/adaptive_tinf/biaxial.h5"),
         ("control: elastoplastic model fitted to Path1 + the same DEM points",
-         "out/biaxial/control_elastoplastic_t0.02/biaxial.h5")]
+         "out/biaxial/control_elastoplastic_tinf/biaxial.h5")]
     assert plan.layout.problem_dem_points("footing", plan.problem_adaptive_method, "footing") == \
-        "out/footing/adaptive_t0.02/dem_points/footing.h5"
+        "out/footing/adaptive_tinf/dem_points/footing.h5"
+    promoting = plan_of("config.yaml", adaptive={"report": True, "problems": True, "problem_threshold": 0.02})
+    assert promoting.problem_adaptive_method == "adaptive_t0.02"
     targets = plan.all_targets()
     assert {"out/tables/biaxial/surrogate_biaxial.csv", "out/tables/footing/surrogate_footing.csv",
             "out/tables/visited_states.csv"} <= set(targets)
     states = plan.visited_states_runs()
     assert list(states.values()) == ["out/fem_dem/path1.h5", "out/rve_paths/designed.h5", "out/rve_paths/long.h5",
-                                     "out/fem_dem/path2.h5", "out/biaxial/fem_dem/biaxial.h5",
-                                     "out/footing/fem_dem/footing.h5"]
+                                     "out/rve_paths/band.h5", "out/rve_paths/pressure.h5", "out/fem_dem/path2.h5",
+                                     "out/biaxial/fem_dem/biaxial.h5", "out/footing/fem_dem/footing.h5"]
     # what an adaptive problem run depends on: the DEM settings and the adaptive section, not the thresholds of Path2
     assert plan.problem_surrogate_definition("biaxial", adaptive=True)["dem"] == plan.run_definition
     other = plan_of("config.yaml", adaptive={"report": True, "problems": True, "thresholds": [0.5]})
     assert other.problem_surrogate_definition("biaxial", True) == plan.problem_surrogate_definition("biaxial", True)
     assert "dem" not in plan.problem_surrogate_definition("biaxial")  # FEM–ML runs no DEM
-    # the default `all` runs FEM–ML on the problems; their adaptive runs are target problem_adaptive_runs
-    default = plan_of("config.yaml")
-    assert not default.problem_adaptive and len(default.problem_comparison("biaxial", "biaxial")) == 3
-    assert list(default.problem_adaptive_runs("biaxial", "biaxial").values()) == [
+    # the default `all` runs the problems' adaptive runs at .inf beside FEM–ML; without adaptive.problems
+    # they are target problem_adaptive_runs
+    assert plan.problem_adaptive
+    off = plan_of("config.yaml", adaptive={"report": True, "problems": False, "problem_threshold": 0.02})
+    assert not off.problem_adaptive and len(off.problem_comparison("biaxial", "biaxial")) == 3
+    assert list(off.problem_adaptive_runs("biaxial", "biaxial").values()) == [
         "out/biaxial/adaptive_t0.02/biaxial.h5", "out/biaxial/control_elastoplastic_t0.02/biaxial.h5"]
     both = plan_of("config.yaml", adaptive={"report": True, "problems": True,
                                             "controls": ["linear_elastic", "elastoplastic"]})

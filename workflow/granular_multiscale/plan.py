@@ -13,6 +13,8 @@ benches take their paths from it too. Nothing here imports Snakemake or reads a 
 
 from __future__ import annotations
 
+import math
+
 from .adaptive import threshold_label
 from .config import dem_newton_config
 from .paths import load_paths_from_config
@@ -41,7 +43,10 @@ ACTIVE_ROUNDS = {"first": "", "after one round": "active/"}
 
 
 def adaptive_label(threshold: float) -> str:
-    """What the tables and figures call an adaptive run: 'adaptive FEM–DEM–ML, threshold 0.02'."""
+    """What the tables and figures call an adaptive run: 'adaptive FEM–DEM–ML, threshold 0.02'; at an
+    infinite threshold no point is promoted: DEM only at its anchors (a problem's weak zone)."""
+    if math.isinf(threshold):
+        return "adaptive FEM–DEM–ML, no promotions (DEM at the anchors)"
     return f"adaptive FEM–DEM–ML, threshold {threshold:g}"
 
 
@@ -247,7 +252,7 @@ class Plan:
         c, s = self.config, self.config["surrogate"]
         return {"specimen": c["specimen"], "newton": c["newton"], "segments": c["load_paths"][path]["segments"],
                 "surrogate_newton": s["newton"], "anchor_initial_state": s["anchor_initial_state"],
-                "out_of_range_tolerance": s["out_of_range_tolerance"]}
+                "out_of_range_tolerance": s["out_of_range_tolerance"], "other_pressure": s["other_pressure"]}
 
     def adaptive_definition(self, path: str) -> dict:
         """What an adaptive run depends on besides its inputs."""
@@ -390,7 +395,7 @@ class Plan:
         c, s = self.config, self.config["surrogate"]
         definition = {"section": c[problem], "pressure": c["specimen"]["confining_pressure"], "newton": c["newton"],
                       "surrogate_newton": s["newton"], "anchor_initial_state": s["anchor_initial_state"],
-                      "out_of_range_tolerance": s["out_of_range_tolerance"]}
+                      "out_of_range_tolerance": s["out_of_range_tolerance"], "other_pressure": s["other_pressure"]}
         if adaptive:
             section = {k: v for k, v in c["adaptive"].items() if k not in ("thresholds", "paths", "report",
                                                                            "active_learning", "controls", "problems")}
