@@ -138,6 +138,12 @@ def render_headline(record: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _band(row: dict) -> str:
+    """', band inclination +1.2°' against the reference for a row of the biaxial test's table."""
+    value = row.get("inclination − reference (deg)")
+    return "" if value is None or value != value else f", band {value:+.1f}°"  # NaN: no band
+
+
 def problem_headline_rows(record: dict) -> list[str]:
     """FEM–ML and the adaptive run beside its control on each problem (the headline's last rows)."""
     label, lines = run_label(record), []
@@ -146,14 +152,15 @@ def problem_headline_rows(record: dict) -> list[str]:
             continue  # a record of a run without the surrogate on the problems
         rows = {r["run"]: r for r in rows_of(record, f"{problem}/surrogate_{problem}.csv")}
         ml = next(r for name, r in rows.items() if name.startswith("FEM–ML"))
-        text = (f"FEM–ML {ml['force: largest error (% of peak)']:.1f} % (steps {ml['steps reached']})")
-        adaptive = [r for name, r in rows.items() if name.startswith("adaptive")]
+        text = (f"FEM–ML {ml['force: largest error (% of peak)']:.1f} % (steps {ml['steps reached']}){_band(ml)}")
+        adaptive = [(name, r) for name, r in rows.items() if name.startswith("adaptive")]
         control = [r for name, r in rows.items() if name.startswith("control")]
         if adaptive and control:
-            a, c = adaptive[0], control[0]
+            (name, a), c = adaptive[0], control[0]
             share = a["DEM particle-steps (% of the reference's)"]
-            text += (f"; adaptive {a['force: largest error (% of peak)']:.1f} % at {share:.0f} % of the DEM work, its control "
-                     f"(elastoplastic model, the same DEM points) {c['force: largest error (% of peak)']:.1f} %")
+            text += (f"; {name.removeprefix('adaptive FEM–DEM–ML, ')}: {a['force: largest error (% of peak)']:.1f} % at "
+                     f"{share:.0f} % of the DEM work{_band(a)}, its control (elastoplastic model, the same DEM points) "
+                     f"{c['force: largest error (% of peak)']:.1f} %{_band(c)}")
         lines.append(f"| the surrogate on the {title} (largest force error over the path, % of the peak) | {text} "
                      f"| {label}, networks that never saw it |")
     return lines

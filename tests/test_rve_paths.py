@@ -209,8 +209,8 @@ def test_bad_config_is_rejected_naming_the_key(sets, section, key):
      "'rve_paths.sets.s.n_steps': 400 axisymmetric increments"),
     ({"s": {"axisymmetric": 2, "n_steps": 3}}, {}, "s", "'rve_paths.sets.s.n_steps': 3 axisymmetric increments .* "
      "cannot be laid out"),
-    ({"s": {"isotropic_triaxial": 2, "n_steps": 10}}, {}, "s", "'rve_paths.sets.s.n_steps': 10 steps, 10 of them "
-     "isotropic"),
+    ({"s": {"isotropic_triaxial": 2, "n_steps": 10}}, {}, "s", "'rve_paths.sets.s.n_steps': 0 isotropic_triaxial "
+     "increments .* after 10 isotropic steps"),
     ({"s": {"isotropic_triaxial": 2}}, {"isotropic_triaxial": {"pressure_min_fraction": 2.0, "pressure_max_fraction": 1.5}},
      "s", "'rve_paths.isotropic_triaxial.pressure_min_fraction': 2.0 is larger than"),
 ])
@@ -438,13 +438,14 @@ def test_a_trajectory_that_loses_its_contacts_is_reported_and_nan(tmp_path_facto
 @pytest.mark.needs_yade
 @pytest.mark.slow
 def test_plane_strain_rves_stay_plane_hold_their_stresses_and_dilate_in_the_band(tmp_path_factory, tmp_path):
-    """Two plane-strain trajectories of real 100-sphere RVEs (12 steps, a band shear of 2–4 %): the
-    strain stays plane to round-off, the stress across the loading axis stays near −f·p0 in the
-    compression phase (a contact tangent stiffer than the packing: it lags, the next step pulls it
-    back), and the dense packing dilates while its band shears."""
+    """Two plane-strain trajectories of real 100-sphere RVEs (12 steps, a band shear of 2–4 %, both
+    shearing a band): the strain stays plane to round-off, the stress across the loading axis stays
+    near −f·p0 in the compression phase (a contact tangent stiffer than the packing: it lags, the
+    next step pulls it back), and the dense packing dilates while its band shears."""
     path, _ = packing(tmp_path_factory)
     config = dem_config(tmp_path, {"s": {"plane_strain": 2, "n_steps": 12}},
-                        plane_strain={"band_shear_min": 0.02, "band_shear_max": 0.04, "cycles_max": 0})
+                        plane_strain={"band_shear_min": 0.02, "band_shear_max": 0.04, "cycles_max": 0,
+                                      "band_probability": 1.0})
     paths = strain_paths_from_config(config, "s")
     ds = run_rve_paths(config, "s", [str(path)], tmp_path / "ps.h5", None, 2)
     strain, stress = ds.strain.values, ds.stress.values
@@ -454,7 +455,7 @@ def test_plane_strain_rves_stay_plane_hold_their_stresses_and_dilate_in_the_band
         n, tn, m, b = plane_strain_frame(p["axis_angle"], p["band_angle"])
         k = p["compression_steps"]
         lateral = stress[1:k + 1, t] @ contraction(tn, tn) / (-p["lateral_stress_fraction"] * P0)
-        assert np.abs(lateral - 1.0).max() < 0.25, lateral  # measured: ...
+        assert np.abs(lateral - 1.0).max() < 0.1, lateral  # measured: 1.6 % and 3.5 % at most
         assert np.all(np.diff(strain[k:, t] @ contraction(m, b)) * np.sign(p["band_angle"]) > 0)
         assert strain[-1, t, :3].sum() > strain[k, t, :3].sum() + 1e-3, strain[:, t, :3].sum(-1)  # dilates
 

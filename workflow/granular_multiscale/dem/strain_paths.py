@@ -258,14 +258,9 @@ def _axisymmetric(rng, k, count, n_steps, increment, bounds, settings, name):
     if dilation < 0:
         largest = min(largest, bounds.max_volumetric_compaction / -dilation)
     cap = int(math.floor(largest / increment + 1e-9))  # in increments
-    level = _cycles(rng, n_steps, cap, settings)
-    if level is None:
-        raise ConfigError(
-            f"config key 'rve_paths.sets.{name}.n_steps': {n_steps} axisymmetric increments of {increment:g} with "
-            f"{settings['cycles_min']}..{settings['cycles_max']} unload-reload cycles cannot be laid out (c cycles need "
-            f"at least 2c + 2 steps, and enough unloading to end within |eps33| <= {cap * increment:g}, the rve_paths "
-            f"bounds at nu = {nu:.3f}); change n_steps, rve_paths.axisymmetric.cycles_min/cycles_max or the bounds")
-    level, reversals = level
+    level, reversals = _cycle_levels(rng, n_steps, cap, increment, settings, name, "axisymmetric",
+                                     f"|eps33| <= {cap * increment:g}, the rve_paths bounds at nu = {nu:.3f}",
+                                     "n_steps, rve_paths.axisymmetric.cycles_min/cycles_max or the bounds")
     e33 = sense * increment * level
     strain = np.zeros((n_steps + 1, 6))
     strain[:, 2] = e33
@@ -277,13 +272,9 @@ def _axisymmetric(rng, k, count, n_steps, increment, bounds, settings, name):
 def _triaxial(rng, k, count, n_steps, increment, bounds, settings, name):
     """The axial part of a stress-controlled triaxial trajectory (lateral strains: the driver)."""
     cap = int(math.floor(bounds.max_strain / increment + 1e-9))
-    level = _cycles(rng, n_steps, cap, settings)
-    if level is None:
-        raise ConfigError(
-            f"config key 'rve_paths.sets.{name}.n_steps': {n_steps} triaxial increments of {increment:g} with "
-            f"{settings['cycles_min']}..{settings['cycles_max']} unload-reload cycles cannot be laid out within "
-            f"|eps33| <= {cap * increment:g}; change n_steps, rve_paths.triaxial.cycles_min/cycles_max or max_strain")
-    level, reversals = level
+    level, reversals = _cycle_levels(rng, n_steps, cap, increment, settings, name, "triaxial",
+                                     f"|eps33| <= {cap * increment:g}",
+                                     "n_steps, rve_paths.triaxial.cycles_min/cycles_max or max_strain")
     strain = np.zeros((n_steps + 1, 6))
     strain[:, 2] = -increment * level
     fraction = float(rng.uniform(settings["lateral_stress_min_fraction"], settings["lateral_stress_max_fraction"]))
@@ -296,15 +287,10 @@ def _isotropic_triaxial(rng, k, count, n_steps, increment, bounds, settings, nam
     changes the pressure (stress controlled), then ε33 with cycles (lateral strains: the driver)."""
     n_isotropic = settings["isotropic_steps"]
     cap = int(math.floor(bounds.max_strain / increment + 1e-9))
-    level = _cycles(rng, n_steps - n_isotropic, cap, settings) if n_isotropic < n_steps else None
-    if level is None:
-        raise ConfigError(
-            f"config key 'rve_paths.sets.{name}.n_steps': {n_steps} steps, {n_isotropic} of them isotropic "
-            f"(rve_paths.isotropic_triaxial.isotropic_steps), leave no room for triaxial increments of {increment:g} "
-            f"with {settings['cycles_min']}..{settings['cycles_max']} unload-reload cycles within |eps33| <= "
-            f"{cap * increment:g}; change n_steps, rve_paths.isotropic_triaxial.isotropic_steps, "
-            f"cycles_min/cycles_max or max_strain")
-    level, reversals = level
+    level, reversals = _cycle_levels(rng, n_steps - n_isotropic, cap, increment, settings, name, "isotropic_triaxial",
+                                     f"|eps33| <= {cap * increment:g}, after {n_isotropic} isotropic steps",
+                                     "n_steps, rve_paths.isotropic_triaxial.isotropic_steps, cycles_min/cycles_max "
+                                     "or max_strain")
     strain = np.zeros((n_steps + 1, 6))
     strain[n_isotropic:, 2] = -increment * level
     fraction = float(np.exp(rng.uniform(math.log(settings["pressure_min_fraction"]),
@@ -320,14 +306,9 @@ def _plane_strain(rng, k, count, n_steps, increment, bounds, settings, name):
                                           settings["compression_max_fraction"]) * n_steps))
     n_compression = min(max(n_compression, 1), n_steps - 1)
     cap = int(math.floor(bounds.max_strain / increment + 1e-9))
-    level = _cycles(rng, n_compression, cap, settings)
-    if level is None:
-        raise ConfigError(
-            f"config key 'rve_paths.sets.{name}.n_steps': {n_compression} plane-strain compression increments of "
-            f"{increment:g} with {settings['cycles_min']}..{settings['cycles_max']} unload-reload cycles cannot be laid "
-            f"out within {cap * increment:g}; change n_steps, rve_paths.plane_strain.compression_min_fraction or "
-            f"cycles_min/cycles_max")
-    level, reversals = level
+    level, reversals = _cycle_levels(rng, n_compression, cap, increment, settings, name, "plane-strain compression",
+                                     f"|eps_nn| <= {cap * increment:g}",
+                                     "n_steps, rve_paths.plane_strain.compression_min_fraction or cycles_min/cycles_max")
     axis_angle = float(rng.uniform(-settings["max_axis_angle"], settings["max_axis_angle"]))
     band_angle = float(rng.uniform(settings["band_angle_min"], settings["band_angle_max"]) * rng.choice([-1.0, 1.0]))
     fraction = float(rng.uniform(settings["lateral_stress_min_fraction"], settings["lateral_stress_max_fraction"]))
@@ -453,6 +434,18 @@ def lateral_servo(strain: np.ndarray, stress: np.ndarray, tangent: np.ndarray, a
     out[:, _AXIAL] += axial_increment
     out[:, _LATERAL] += lateral
     return out
+
+
+def _cycle_levels(rng, n_steps: int, cap: int, increment: float, settings: dict, name: str, what: str,
+                  bound: str, change: str) -> tuple[np.ndarray, list[int]]:
+    """:func:`_cycles`, or a ConfigError naming the set's n_steps, the bound and what to change."""
+    found = _cycles(rng, n_steps, cap, settings) if n_steps > 0 else None
+    if found is None:
+        raise ConfigError(
+            f"config key 'rve_paths.sets.{name}.n_steps': {n_steps} {what} increments of {increment:g} with "
+            f"{settings['cycles_min']}..{settings['cycles_max']} unload-reload cycles cannot be laid out (c cycles need "
+            f"at least 2c + 2 steps, and enough unloading to end within {bound}); change {change}")
+    return found
 
 
 def _cycles(rng, n_steps: int, cap: int, settings: dict):
