@@ -93,7 +93,7 @@ def with_dem_work(record: dict) -> dict:
         "rve_paths/designed": {"particle_steps": 400_000_000, "cpu_s": 300.0, "wall_s": 200.0}}
     record["figures"]["rve_paths"] = {"designed": {
         "trajectories": 96, "steps": 80, "evaluations": 7680, "lost_contact": 0, "families": {"triaxial": 96},
-        "largest_axial_strain_pct": 5.0, "largest_lateral_strain_pct": 3.5}}
+        "largest_axial_strain_pct": 5.0, "largest_lateral_strain_pct": 3.5, "largest_shear_strain_pct": 6.0}}
     return record
 
 
@@ -105,7 +105,7 @@ def test_the_dem_cost_and_the_rve_path_sets_come_from_the_run_files():
     paper = 800_000_000 / (h["material_points_evaluated"] * h["n_spheres"]) * 2000 * 1000
     assert f"{paper:.1e} particle-steps, about {paper * 1900 / 2.2e9 / 3600:.0f} CPU-hours" in headline
     sets = update_docs.render_rve_paths(record)
-    assert "| `designed` | 96 triaxial × 80 steps | 7680 | 4.00e+08 |" in sets
+    assert "| `designed` | 96 triaxial × 80 steps | 7680 | 4.00e+08 |" in sets and "| 5.0 % / 3.5 % | 6.0 % | 0 |" in sets
     assert "Together 4.00e+08 particle-steps, 40 % of FEM–DEM Path1's." in sets
 
 
