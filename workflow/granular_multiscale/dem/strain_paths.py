@@ -43,9 +43,9 @@ plane_strain
     material beside a band unloads as the specimen softens), so the RVE dilates or compacts as it
     wants. The share 1 − ``band_probability`` of the trajectories go on with phase 1's control
     instead, compressing along n by the same total in phase 2: the points of a band that a coarse
-    mesh resolves by whole elements stretch along the band too, as in a long biaxial test. The designed strain is the imposed part (−s·n⊗n, then the band shear);
-    the driver chooses the other components (:func:`mixed_control`, rows of
-    :func:`plane_strain_rows`).
+    mesh resolves by whole elements stretch along the band too, as in a long biaxial test. The
+    designed strain is the imposed part (−s·n⊗n, then the band shear); the driver chooses the other
+    components (:func:`mixed_control`, rows of :func:`plane_strain_rows`).
 isotropic_triaxial
     A drained triaxial test at another confining pressure, from the consolidated state at p0: phase
     0 (``isotropic_steps``) takes the three normal stresses linearly from −p0 to −g·p0 with the
