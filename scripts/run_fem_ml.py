@@ -8,12 +8,12 @@ from granular_multiscale.drivers.fem_ml import run_fem_ml
 
 
 def main(config, path_name, sigma, tangent_model, tangent, output, log, allow_partial=False,
-         problem="triaxial") -> None:
+         problem="triaxial", weak_zone_models=None) -> None:
     config = validate_config(config)
     logger = setup_logging(log)
     with timed_rule(logger, f"FEM–ML {problem} {path_name} ({tangent} tangent)"):
         ds = run_fem_ml(config, path_name, sigma, tangent_model, tangent, logger=logger, allow_partial=allow_partial,
-                        problem=problem)
+                        problem=problem, weak_zone_models=weak_zone_models)
         write_run(ds, output, config)
         logger.info("wrote %s (method %s, %d steps, completed %d)", output, ds.attrs["method"], ds.sizes["step"] - 1,
                     ds.attrs["completed"])
@@ -23,4 +23,5 @@ if "snakemake" in globals():
     sm = snakemake  # noqa: F821
     main(dict(sm.config), sm.params.get("path_name") or sm.wildcards.path, sm.input.sigma, sm.input.tangent,
          sm.params.tangent, sm.output[0], sm.log[0], allow_partial=bool(sm.params.get("allow_partial", False)),
-         problem=sm.params.get("problem") or "triaxial")
+         problem=sm.params.get("problem") or "triaxial",
+         weak_zone_models={"sigma": sm.input.weak_sigma, "tangent": sm.input.weak_tangent} if "weak_sigma" in sm.input.keys() else None)

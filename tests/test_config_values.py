@@ -121,6 +121,19 @@ def test_the_smallest_sphere_must_be_smaller_than_the_largest():
     refused(nested("dem.diameter_min", 0.009), "dem.diameter_min")
 
 
+@pytest.mark.parametrize("config, key, says", [
+    ({"surrogate": {"weak_zone_sources": ["rve_paths:band"]}}, "surrogate.weak_zone_sources",
+     "drives the specimen's packings"),
+    ({"surrogate": {"weak_zone_sources": ["rve_paths:nowhere"]}}, "surrogate.weak_zone_sources", "names no set"),
+    ({"surrogate": {"weak_zone_sources": ["rve_paths:band_weak"]}, "biaxial": {"weak_zone": None}},
+     "surrogate.weak_zone_sources", "has no weak zone"),
+    ({"surrogate": {"training_sources": ["path1", "rve_paths:band_weak"]}}, "surrogate.training_sources",
+     "another material than the specimen's"),
+])
+def test_the_weak_zones_networks_train_on_the_weak_packing_and_only_they(config, key, says):
+    assert says in refused(config, key)
+
+
 def test_a_load_path_strain_out_of_bounds_from_a_string():
     refused(nested("load_paths.path2.segments[1][1]", "2.5"), "load_paths.path2.segments[1][1]")
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import pickle
 import signal
+import shutil
 import subprocess
 import sys
 import time
@@ -440,7 +441,7 @@ def test_biaxial_fem_dem_resumes_after_kill_9_bit_for_bit(tmp_path_factory, tmp_
 @pytest.mark.slow
 def test_every_driver_runs_the_biaxial_test(tmp_path_factory, tmp_path):
     """FEM–ML and the adaptive set on the biaxial test: FEM–ML runs the path with the networks at
-    every point, and the adaptive run with every point an anchor is FEM–DEM bit for bit (same
+    every point (the weak zone's own at its points, when given), and the adaptive run with every point an anchor is FEM–DEM bit for bit (same
     problem, packings, weak zone and Newton settings)."""
     import torch
 
@@ -467,6 +468,14 @@ def test_every_driver_runs_the_biaxial_test(tmp_path_factory, tmp_path):
     ml = run_fem_ml(config, "p", tmp_path / "sigma.pt", None, "autodiff", progress=False, problem="biaxial")
     assert ml.attrs["problem"] == "biaxial" and ml.sizes == {**ml.sizes, "step": 4, "gp": 32}
     assert np.all(np.diff(ml.load_force.values) > 0)  # compression raises the platen force
+    # networks of their own at the weak zone (here a copy of the specimen's, which these networks,
+    # trained in seconds, keep Newton stable beside): the same run bit for bit, the file recorded
+    shutil.copy(tmp_path / "sigma.pt", tmp_path / "weak_sigma.pt")
+    zoned = run_fem_ml(config, "p", tmp_path / "sigma.pt", None, "autodiff", progress=False, problem="biaxial",
+                       weak_zone_models={"sigma": tmp_path / "weak_sigma.pt", "tangent": None})
+    assert zoned.attrs["surrogate_weak_zone_sigma_model"] == str(tmp_path / "weak_sigma.pt")
+    for name in ("stress", "strain", "load_force", "stress_spread"):
+        assert np.array_equal(zoned[name].values, ml[name].values), name
 
     packings = [str(strong)]
     dem = run_fem_dem(config, "p", packings, tmp_path / "dem.h5", None, 2, problem="biaxial", weak_packing=str(weak))

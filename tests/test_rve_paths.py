@@ -39,7 +39,8 @@ def config_with(sets: dict, **section) -> dict:
     """The default config with these RVE-path sets and `rve_paths` keys (nested dicts merged)."""
     config = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
     config["rve_paths"] = {"sets": sets}
-    config["surrogate"]["training_sources"] = ["path1"]  # the default's RVE-path set is not among these sets
+    # the default's RVE-path sets are not among these sets
+    config["surrogate"].update(training_sources=["path1"], weak_zone_sources=[])
     for key, value in section.items():
         config["rve_paths"][key] = value
     return validate_config(config)

@@ -443,3 +443,43 @@ def test_an_unseen_combination_inside_the_box_is_off_the_training_data(data, tmp
     box_only.evaluate(np.stack([seen, unseen]))
     box_only.commit()
     assert "off_training_points" not in box_only.step_info()  # a model file without the sample: the box alone
+
+
+def test_zoned_networks_answer_each_point_with_its_zones_networks(data):
+    """FEM–ML's weak zone: each point gets its zone's networks, exactly as they answer alone; the
+    spread is gathered per point and the out-of-range points counted over both zones."""
+    from granular_multiscale.materials.wrappers import ZonedSurrogate
+
+    zones = np.array([0, 1, 0, 1, 1])
+    specimen, weak = untrained(data, "sigma", seed=3), untrained(data, "sigma", seed=4)
+    zoned = ZonedSurrogate([SurrogateMaterial(2, specimen, tangent="autodiff"), SurrogateMaterial(3, weak, tangent="autodiff")], zones)
+    _, _, trial = state_with_history(5, seed=5)
+    stress, tangent = zoned.evaluate(trial)
+    for model, idx in ((specimen, zones == 0), (weak, zones == 1)):
+        alone = SurrogateMaterial(int(idx.sum()), model, tangent="autodiff")
+        s, t = alone.evaluate(trial[idx])
+        np.testing.assert_array_equal(stress[idx], s)
+        np.testing.assert_array_equal(tangent[idx], t)
+    assert not np.allclose(stress[0], stress[1])  # another network, another answer
+    zoned.commit()
+    assert zoned.stress_spread.shape == (1, 5, 6)  # one network per model: zeros, one record per commit
+    assert zoned.ensemble_size == 1 and zoned.sigma_model is specimen  # what the run file records
+    # ε33 two ranges past the training maximum at one point of each zone: two points out in all
+    x_min, x_max = specimen.network.x_min.numpy()[2], specimen.network.x_max.numpy()[2]
+    beyond = trial.copy()
+    beyond[[0, 1], 2] = 3 * x_max - 2 * x_min
+    zoned.evaluate(beyond)
+    zoned.commit()
+    assert zoned.step_info()["out_of_range_points"] == 2
+    assert zoned.stress_spread.shape == (2, 5, 6)
+
+
+def test_zoned_networks_must_be_ensembles_of_one_size(data):
+    from granular_multiscale.materials.wrappers import ZonedSurrogate
+    from granular_multiscale.surrogate.models import EnsembleMLP
+
+    pair = untrained(data, "sigma", seed=7)
+    pair.network = EnsembleMLP([untrained(data, "sigma", seed=s).network for s in (7, 8)]).to(torch.float64)
+    with pytest.raises(ValueError, match=r"ensembles of one size .*\[1, 2\]"):
+        ZonedSurrogate([SurrogateMaterial(1, untrained(data, "sigma"), tangent="autodiff"),
+                        SurrogateMaterial(1, pair, tangent="autodiff")], [0, 1])

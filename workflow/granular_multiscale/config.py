@@ -206,6 +206,28 @@ def _check_set_settings(config: dict, schema: dict) -> None:
             raise ConfigError(f"config key 'rve_paths.sets.{name}.settings.{_key(e.absolute_path)}': {e.message}")
 
 
+def _check_weak_zone_sources(config: dict) -> None:
+    """The weak zone's networks train on RVE-path sets of the weak packing, and only they do."""
+    sets = config.get("rve_paths", {}).get("sets", {})
+    key = "config key 'surrogate.weak_zone_sources'"
+    weak_sources = config["surrogate"]["weak_zone_sources"]
+    if weak_sources and config["biaxial"]["weak_zone"] is None:
+        raise ConfigError(f"{key}: the biaxial test has no weak zone (biaxial.weak_zone is null); set it to []")
+    for source in weak_sources:
+        name = source.split(":", 1)[1]
+        if name not in sets:
+            raise ConfigError(f"{key}: {source!r} names no set of 'rve_paths.sets' (defined: {sorted(sets)})")
+        if sets[name]["packing"] != "weak_zone":
+            raise ConfigError(f"{key}: the set {name!r} drives the specimen's packings; the weak zone's networks "
+                              f"need a set with 'rve_paths.sets.{name}.packing: weak_zone'")
+    for source in config["surrogate"]["training_sources"]:
+        name = source.split(":", 1)[1] if source.startswith("rve_paths:") else None
+        if name in sets and sets[name]["packing"] == "weak_zone":
+            raise ConfigError(f"config key 'surrogate.training_sources': the set {name!r} drives the weak zone's "
+                              f"packing, another material than the specimen's; list it in "
+                              f"'surrogate.weak_zone_sources' instead")
+
+
 def _check_consistency(config: dict, schema: dict) -> None:
     from .paths import load_paths_from_config
 
@@ -227,6 +249,7 @@ def _check_consistency(config: dict, schema: dict) -> None:
         if not kind and name not in paths:
             raise ConfigError(f"config key 'surrogate.training_sources': unknown load path {name!r}; defined paths: "
                               f"{sorted(paths)}")
+    _check_weak_zone_sources(config)
     _check_set_settings(config, schema)
     for key, names in (("adaptive.paths", config["adaptive"]["paths"]),
                        ("adaptive.active_learning.paths", config["adaptive"]["active_learning"]["paths"])):

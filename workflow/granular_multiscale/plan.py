@@ -40,6 +40,8 @@ PROBLEM_LABEL = {"biaxial": "Biaxial test (plane strain)", "footing": "Strip foo
 ELEMENT_TESTS = {"triaxial": "triaxial compression", "biaxial": "plane strain compression"}
 # the two rounds of the surrogate: the pipeline's networks, and those of one active-learning round
 ACTIVE_ROUNDS = {"first": "", "after one round": "active/"}
+# the folder of the weak zone's networks (surrogate.weak_zone_sources)
+WEAK_ZONE_ROUND = "weak_zone/"
 
 
 def adaptive_label(threshold: float) -> str:
@@ -182,6 +184,10 @@ class Plan:
         self.training_sources = surrogate["training_sources"] or [self.training_path]
         self.training_run_paths = [s for s in self.training_sources if not s.startswith("rve_paths:")]
         self.training_rve_sets = [s.split(":", 1)[1] for s in self.training_sources if s.startswith("rve_paths:")]
+        # the networks of the biaxial test's weak zone: RVE-path sets of the weak packing, a DEM packing
+        # (none, or an analytic reference: FEM–ML gives the weak zone the specimen's networks)
+        self.weak_zone_sets = ([s.split(":", 1)[1] for s in surrogate["weak_zone_sources"]]
+                               if self.reference == "fem_dem" else [])
         # every load path the training did not use is a validation case; FEM–ML runs every path
         self.validation_paths = [p for p in self.path_names if p not in self.training_run_paths]
         self.ml_paths = list(dict.fromkeys([self.validation_path, *self.validation_paths,
@@ -228,14 +234,34 @@ class Plan:
         return self.layout.run(self.reference, path)
 
     def training_rounds(self) -> dict[str, tuple[list[str], dict]]:
-        """{folder prefix: (training source files, networks)}: the pipeline's networks, and those of
-        the active-learning round (NNσ and ND with history only: what the adaptive runs use)."""
+        """{folder prefix: (training source files, networks)}: the pipeline's networks, those of the
+        active-learning round (NNσ and ND with history only: what the adaptive runs use) and, with
+        surrogate.weak_zone_sources, those of the biaxial test's weak zone."""
         L = self.layout
         sources = [self.reference_run(p) for p in self.training_run_paths]
         sources += [L.rve_paths(s) for s in self.training_rve_sets]
         promoted = [L.adaptive_dem_points(self.active_label, p) for p in self.active_paths]
-        return {"": (sources, NETWORKS),
-                "active/": (sources + promoted, {n: NETWORKS[n] for n in ("sigma", "tangent")})}
+        with_history = {n: NETWORKS[n] for n in ("sigma", "tangent")}
+        rounds = {"": (sources, NETWORKS), "active/": (sources + promoted, with_history)}
+        if self.weak_zone_sets:
+            rounds[WEAK_ZONE_ROUND] = ([L.rve_paths(s) for s in self.weak_zone_sets], with_history)
+        return rounds
+
+    def rve_path_packings(self, name: str) -> list[str]:
+        """The packings an RVE-path set drives: the specimen's, or the weak zone's (``packing: weak_zone``);
+        none for the elastoplastic model."""
+        if self.reference != "fem_dem":
+            return []
+        if self.config["rve_paths"]["sets"][name]["packing"] == "weak_zone":
+            return [self.layout.weak_packing()]
+        return self.packings
+
+    def weak_zone_models(self, problem: str) -> dict[str, str]:
+        """{weak_sigma, weak_tangent: model file} of the weak zone's networks, for FEM–ML on a problem
+        with a weak zone when surrogate.weak_zone_sources trains them; otherwise empty."""
+        if problem != "biaxial" or self.weak_zone is None or not self.weak_zone_sets:
+            return {}
+        return {f"weak_{n}": self.layout.model(n, WEAK_ZONE_ROUND) for n in ("sigma", "tangent")}
 
     def training_settings(self) -> dict:
         return {k: self.config["surrogate"][k] for k in TRAINING_KEYS}

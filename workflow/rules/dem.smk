@@ -47,8 +47,9 @@ rule fem_dem:
 
 rule rve_paths:
     input:
-        # the material points are YADE RVEs, or the elastoplastic model with reference_material: elastoplastic
-        packings=PLAN.packings if PLAN.reference == "fem_dem" else [],
+        # the material points are YADE RVEs (the specimen's packings, or the weak zone's with the set's
+        # packing: weak_zone), or the elastoplastic model with reference_material: elastoplastic
+        packings=lambda wc: PLAN.rve_path_packings(wc.name),
     output:
         L.rve_paths("{name}"),
     log:

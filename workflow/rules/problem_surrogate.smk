@@ -1,8 +1,10 @@
 # The surrogate on the problems beyond the triaxial specimen, with the pipeline's networks (trained
 # on triaxial and RVE-path data only: the problems' own runs validate, docs/problems.md):
 #
-#   problem_fem_ml            {OUT}/{problem}/fem_ml/{case}.h5: FEM–ML; a run that stops keeps its
-#                             converged steps (completed = 0) and the table says where it stopped
+#   problem_fem_ml            {OUT}/{problem}/fem_ml/{case}.h5: FEM–ML (the weak zone's networks at the
+#                             biaxial test's weak zone, with surrogate.weak_zone_sources); a run that
+#                             stops keeps its converged steps (completed = 0) and the table says
+#                             where it stopped
 #   problem_adaptive          {OUT}/{problem}/adaptive_t<threshold>/{case}.h5 (adaptive.problem_threshold;
 #                             the weak zone's points are anchors) and its DEM answers under dem_points/
 #   problem_adaptive_control  {OUT}/{problem}/control_{control}_t<threshold>/{case}.h5 for each model of
@@ -23,6 +25,10 @@ CAT_PROBLEMS_SURROGATE = "8 The surrogate on the problems"
 
 
 use rule fem_ml as problem_fem_ml with:
+    input:
+        # the biaxial test's weak zone gets its own networks where surrogate.weak_zone_sources trains them
+        unpack(lambda wc: {"sigma": L.model("sigma"), "tangent": L.model("tangent"),
+                           **PLAN.weak_zone_models(wc.problem)}),
     output:
         L.problem_run("{problem}", "fem_ml", "{case}"),
     log:

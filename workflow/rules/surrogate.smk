@@ -12,13 +12,15 @@
 #   metrics                {OUT}/tables/*.csv
 #   dataset_active, train_{sigma,tangent}_active   the active-learning round (adaptive.smk): the same
 #                          sources plus the DEM answers of adaptive runs -> {OUT}/active/dataset, {OUT}/active/models
+#   dataset_weak_zone, train_{sigma,tangent}_weak_zone   the networks of the biaxial test's weak zone
+#                          (surrogate.weak_zone_sources: RVE-path sets of the weak packing) -> {OUT}/weak_zone/models
 from granular_multiscale.plan import NETWORKS
 
 SURROGATE_THREADS = config["surrogate"]["torch_threads"]
 
 
 for _round, (_sources, _networks) in PLAN.training_rounds().items():
-    _suffix = "_active" if _round else ""
+    _suffix = "_" + _round.strip("/") if _round else ""  # _active, _weak_zone
 
     rule:
         name:

@@ -33,7 +33,7 @@ import xarray as xr
 
 from ..fem.newton import ConvergenceError
 from ..materials.base import MaterialPointSet
-from ..materials.wrappers import IsotropicPrestrain
+from ..materials.wrappers import IsotropicPrestrain, ZonedSurrogate
 from ..surrogate.material import SurrogateMaterial, relative_spread, spread_floor
 from .problems import problem_and_path
 
@@ -56,20 +56,31 @@ def run_fem_ml(
     checkpoint: str | Path | None = None,
     allow_partial: bool = False,
     problem: str = "triaxial",
+    weak_zone_models: dict | None = None,
 ) -> xr.Dataset:
     """FEM–ML run of load path `path_name` of `problem` (validated config); returns the run Dataset.
 
     A step that does not converge raises ConvergenceError; with `allow_partial` (the runs that
     only compare the two tangents' Newton iterations) the converged steps are returned instead,
-    marked ``completed = 0`` with ``stopped_at_step`` and ``stop_reason``. The networks stand for
-    one material: a weak zone of the problem is not represented (a warning says so)."""
+    marked ``completed = 0`` with ``stopped_at_step`` and ``stop_reason``. A weak zone of the problem
+    gets the networks of `weak_zone_models` ({"sigma": file, "tangent": file}, trained on RVEs of
+    the weak packing); without them it gets the specimen's networks (a warning says so)."""
     logger = logger or logging.getLogger("granular_multiscale.fem_ml")
     config = fem_ml_config(config)
     bvp, load_path = problem_and_path(config, problem, path_name)
-    if bvp.zones().any():
-        logger.warning("FEM–ML %s %s: the networks stand for one material; the %d points of the weak zone get the "
-                       "same networks as the others", problem, path_name, int(bvp.zones().sum()))
-    material = surrogate_material(config, bvp.n_material_points, sigma_model, tangent_model, tangent, logger)
+    zones = bvp.zones()
+    if zones.any() and weak_zone_models:
+        material = ZonedSurrogate(
+            [surrogate_material(config, int((zones == k).sum()), models["sigma"], models["tangent"], tangent, logger)
+             for k, models in enumerate(({"sigma": sigma_model, "tangent": tangent_model}, weak_zone_models))],
+            zones)
+        logger.info("FEM–ML %s %s: the %d points of the weak zone get its own networks (NNσ %s)", problem, path_name,
+                    int(zones.sum()), weak_zone_models["sigma"])
+    else:
+        if zones.any():
+            logger.warning("FEM–ML %s %s: no networks of the weak zone (surrogate.weak_zone_sources); its %d points "
+                           "get the specimen's", problem, path_name, int(zones.sum()))
+        material = surrogate_material(config, bvp.n_material_points, sigma_model, tangent_model, tangent, logger)
     logger.info(
         "FEM–ML %s %s: %d Gauss points (%d material points), %s, tangent %s, NNσ %s%s (ensemble of %d); "
         "Newton tolerance %g, %d iterations",
@@ -82,6 +93,8 @@ def run_fem_ml(
                                  f"FEM–ML {problem} {path_name} with the {tangent} tangent")
     ds = ds.assign(spread_variables(material, ds))
     ds.attrs.update(surrogate_attributes(material, sigma_model, tangent_model))
+    if isinstance(material, ZonedSurrogate):
+        ds.attrs["surrogate_weak_zone_sigma_model"] = str(weak_zone_models["sigma"])
     n_out = int(ds["out_of_range_points"].max()) if "out_of_range_points" in ds else 0
     if n_out:
         steps = int((ds["out_of_range_points"] > 0).sum())

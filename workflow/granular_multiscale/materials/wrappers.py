@@ -8,6 +8,7 @@ solver sees, never the solver.
   seeded and a pure function of the trial strain, for robustness tests of the solver.
 * :class:`Zoned` — a heterogeneous body of analytic materials: the points of each zone (a weak
   zone that triggers a shear band) answered by a material set of their own;
+  :class:`ZonedSurrogate` the same for networks (FEM–ML's weak zone with networks of its own);
 * :class:`UniformField` — a homogeneous scene (smooth platens, uniform material): one
   material point is evaluated and its answer broadcast to every Gauss point; a trial field
   that is not uniform stops the run with :class:`NonUniformFieldError`;
@@ -472,3 +473,40 @@ class Zoned(MaterialPointSet):
     def close(self) -> None:
         for inner in self.sets:
             inner.close()
+
+
+class ZonedSurrogate(Zoned):
+    """Networks side by side: the specimen's at zone 0, another material's (the weak zone's) at zone 1.
+    What FEM–ML records of its networks comes from the specimen's set (``sets[0]``: its model
+    files, ensemble size, features and training pressure); the ensemble spread is gathered per
+    point from each zone's set, the out-of-range points are counted over all of them."""
+
+    def __init__(self, sets: list[MaterialPointSet], zones):
+        super().__init__(sets, zones)
+        sizes = {inner.ensemble_size for inner in sets}
+        if len(sizes) != 1:
+            raise ValueError(f"the zones' networks must be ensembles of one size (their spreads are compared), "
+                             f"got {sorted(sizes)}")
+
+    def __getattr__(self, name):
+        # the specimen's networks stand for the run (ensemble_size, tangent, feature_names, sigma_model...)
+        if name == "sets":
+            raise AttributeError(name)
+        return getattr(self.sets[0], name)
+
+    @property
+    def stress_spread(self) -> np.ndarray:
+        """[committed states, n_points, 6] each point's spread, from its zone's networks."""
+        spreads = [inner.stress_spread for inner in self.sets]
+        commits = {spread.shape[0] for spread in spreads}
+        if len(commits) != 1:
+            raise RuntimeError(f"the zones' networks recorded {sorted(commits)} committed states, not one number")
+        out = np.zeros((commits.pop(), self.n_points, 6))
+        for spread, idx in zip(spreads, self.members):
+            out[:, idx] = spread
+        return out
+
+    def step_info(self) -> dict[str, float]:
+        infos = [inner.step_info() for inner, idx in zip(self.sets, self.members) if idx.size]
+        keys = sorted({k for info in infos for k in info})
+        return {k: (max if k.endswith("excess") else sum)(info.get(k, 0.0) for info in infos) for k in keys}
