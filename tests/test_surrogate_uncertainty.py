@@ -312,7 +312,8 @@ def test_calibration_with_one_network_says_the_spread_is_empty(runs, tmp_path):
     for label, values in (("error, median", np.median(error, axis=1)),
                           ("error, 90th percentile", np.percentile(error, 90, axis=1))):
         np.testing.assert_array_equal(drawn["per_step"][label][0], runs[1].step.values[1:])
-        np.testing.assert_allclose(drawn["per_step"][label][1], values, rtol=3.3e-16, err_msg=label)  # measured 2.2e-16
+        # measured 2.2e-16, and 4.1e-16 with networks that differ from those by round-off
+        np.testing.assert_allclose(drawn["per_step"][label][1], values, rtol=1e-15, err_msg=label)
     with Image.open(out["png"]) as image:
         assert image.size == (800, 336)  # 10 x 4.2 inches at 80 dpi
 

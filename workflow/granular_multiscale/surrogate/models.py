@@ -169,23 +169,33 @@ class ScaledMLP(nn.Module):
         Forward-mode differentiation written out for the Linear/activation stack: the tangents
         are pushed through each layer as t <- act'(z) * (W t). One batched pass, no autograd
         graph: several times faster than vmap(jacrev) for the small matrices of the surrogate.
-        The tangents are held as [n, k, width], so that each layer is one plain matrix product
-        t @ Wᵀ over n·k rows (an einsum over [n, width, k] copied them into that layout at every
-        layer: 1.5× slower at the paper mesh), and tanh' = 1 − tanh² reuses the layer's output."""
-        h = self.scale_x(x)
-        t = (dx / self.x_scale[None, :, None]).transpose(1, 2)
+        Each point's value and its k tangents are the rows of one block z [n, 1 + k, width], so a
+        layer is ONE matrix product z @ Wᵀ over n·(1+k) rows, the bias added to the value rows
+        only, and the block is updated in place. (A product for the values and another for the
+        tangents, each layer's results new tensors, took 1.4× as long for the default 4 × 64 tanh
+        networks at the 128 Gauss points of the triaxial specimen; before that, tangents held as
+        [n, width, k] were copied at every layer, 1.5× slower again at the paper mesh.)
+        tanh' = 1 − tanh² reuses the layer's output. For evaluation (under torch.no_grad()): the
+        in-place updates cannot be differentiated again."""
+        n, n_in = x.shape
+        rows = 1 + dx.shape[2]
+        z = torch.empty(n, rows, n_in, dtype=x.dtype, device=x.device)
+        z[:, 0] = self.scale_x(x)
+        z[:, 1:] = (dx / self.x_scale[None, :, None]).transpose(1, 2)
         for layer in self.net:
             if isinstance(layer, nn.Linear):
-                h = torch.nn.functional.linear(h, layer.weight, layer.bias)
-                t = torch.matmul(t, layer.weight.T)
-            elif isinstance(layer, nn.Tanh):
-                h = torch.tanh(h)
-                t = t * (1.0 - h * h)[:, None, :]
+                z = torch.mm(z.view(n * rows, -1), layer.weight.T).view(n, rows, -1)
+                z[:, 0] += layer.bias
+                continue
+            h = z[:, 0]  # the value rows (a view of z)
+            if isinstance(layer, nn.Tanh):
+                h.tanh_()
+                slope = 1.0 - h * h
             else:
                 slope = activation_derivative(layer, h)
-                h = layer(h)
-                t = t * slope[:, None, :]
-        return self.unscale_y(h), (t * self.y_scale).transpose(1, 2)
+                h.copy_(layer(h))
+            z[:, 1:] *= slope[:, None, :]
+        return self.unscale_y(z[:, 0]), (z[:, 1:] * self.y_scale).transpose(1, 2)
 
 
 class EnsembleMLP(nn.Module):
