@@ -93,17 +93,23 @@ def _networks_answered(run: xr.Dataset) -> np.ndarray:
 
 
 def spread_rank_correlation(reference: xr.Dataset, run: xr.Dataset) -> float:
-    """Median over the steps after the reference's peak force (every step from 1 on where the force
-    still rises at the end, the footing) of Spearman's ρ between the run's relative spread and its
-    stress error over the Gauss points; NaN without spread."""
+    """:func:`rank_correlation_after_peak` of the run's relative ensemble spread; NaN without spread."""
     if "stress_spread_relative" not in run or int(run.attrs.get("ensemble_size", 1)) < 2:
         return float("nan")
+    return rank_correlation_after_peak(reference, run, run["stress_spread_relative"].transpose("step", "gp").values)
+
+
+def rank_correlation_after_peak(reference: xr.Dataset, run: xr.Dataset, indicator: np.ndarray) -> float:
+    """Median over the steps after the reference's peak force (every step from 1 on where the force
+    still rises at the end, the footing) of Spearman's ρ between `indicator` [steps, n_gp] and the
+    run's stress error over the Gauss points where the networks answered: does the indicator say
+    *where* the networks are wrong?"""
     errors = stress_errors(reference, run)
-    spread = run["stress_spread_relative"].transpose("step", "gp").values[: errors.shape[0]]
+    indicator = indicator[: errors.shape[0]]
     answered = _networks_answered(run)[: errors.shape[0]]
     peak = int(np.argmax(_force(reference)))
     first = peak + 1 if peak + 1 < reference.sizes["step"] else 1  # a reference still rising at the end: every step
-    rho = [spearman(spread[k][answered[k]], errors[k][answered[k]]) for k in range(first, errors.shape[0])]
+    rho = [spearman(indicator[k][answered[k]], errors[k][answered[k]]) for k in range(first, errors.shape[0])]
     rho = [r for r in rho if np.isfinite(r)]
     return float(np.median(rho)) if rho else float("nan")
 
