@@ -175,7 +175,7 @@ def main(argv=None) -> list[dict]:
     table = pd.DataFrame(rows).set_index(["what", "training seed"]).sort_index().T  # a column per run
     with pd.option_context("display.width", 250, "display.max_columns", 30, "display.max_colwidth", 12):
         print(table.to_string(float_format=lambda v: f"{v:.3g}"))
-    measurement.finish(rows, args.out)
+    measurement.finish({"rows": rows}, args.out)
     print(f"wrote {args.out}")
     return rows
 

@@ -314,6 +314,34 @@ def render_ensemble_resampling(record: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def render_trainings(record: dict) -> str:
+    """The default networks and independent trainings of them, on the validation path and the problems
+    (bench_trainings)."""
+    lines = [f"{record['date'].split()[0]}, commit {record['commit'][:7]}; force and εv: largest error in % of the "
+             "reference's peak (up to / after its peak); ρ: Spearman's over the points of each step after the peak, "
+             "median:", "",
+             "| run | training seed | force | εv | band Δ, onset Δ | σ MAE in / out of the band or under the footing "
+             "(kPa) | ρ(spread, error) / ρ(distance, error) | DEM share |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in sorted(record["figures"]["rows"], key=lambda r: (r["what"], r["training seed"])):
+        get = r.get
+        force = f"{r['force: largest error (% of peak)']:.2f} %"
+        if get("force: up to the peak (%)") is not None:
+            force += f" ({r['force: up to the peak (%)']:.1f} / {r['force: after the peak (%)']:.1f})"
+        band = (f"{r['inclination − reference (deg)']:+.1f}°, {_number(get('onset − reference (% strain)'))} %"
+                if get("inclination − reference (deg)") is not None else "–")
+        inside = get("stress MAE in the band (kPa)", get("stress MAE under the footing (kPa)"))
+        outside = get("stress MAE outside the band (kPa)", get("stress MAE elsewhere (kPa)"))
+        mae = f"{_number(inside, 1)} / {_number(outside, 1)}" if inside is not None else "–"
+        rho = (f"{_number(get('spread–error rank correlation (after the peak)'))} / "
+               f"{_number(get('distance–error rank correlation (after the peak)'))}"
+               if get("distance–error rank correlation (after the peak)") is not None else "–")
+        share = get("DEM particle-steps (% of the reference's)")
+        lines.append(f"| {r['what']} | {r['training seed']} | {force} | "
+                     f"{r['volumetric strain: largest error (% of its peak)']:.1f} % | {band} | {mae} | {rho} | "
+                     f"{'–' if share is None else f'{share:.1f} %'} |")
+    return "\n".join(lines) + "\n"
+
+
 def render_strain_rate(record: dict) -> str:
     """FEM–DEM of one path at each RVE strain rate against the slowest (bench_strain_rate)."""
     rows = record["figures"]["rows"]
@@ -344,7 +372,7 @@ def render_fem_ml_vs_dem(record: dict) -> str:
 RENDERERS = {"headline": render_headline, "rules": render_rules, "fem_ml": render_fem_ml, "problems": render_problems,
              "problem_references": render_problem_references, "rve_paths": render_rve_paths,
              "ensemble_resampling": render_ensemble_resampling, "strain_rate": render_strain_rate,
-             "fem_ml_vs_dem": render_fem_ml_vs_dem}
+             "fem_ml_vs_dem": render_fem_ml_vs_dem, "trainings": render_trainings}
 
 
 def rewrite(text: str, document: str) -> str:

@@ -21,7 +21,9 @@ def main(config, path_name, sigma, tangent_model, tangent, output, log, allow_pa
 
 if "snakemake" in globals():
     sm = snakemake  # noqa: F821
+    # the weak zone's networks: inputs of problem_fem_ml on a problem with a weak zone
+    weak = {"sigma": sm.input.weak_sigma, "tangent": sm.input.weak_tangent} if "weak_sigma" in sm.input.keys() else None
     main(dict(sm.config), sm.params.get("path_name") or sm.wildcards.path, sm.input.sigma, sm.input.tangent,
          sm.params.tangent, sm.output[0], sm.log[0], allow_partial=bool(sm.params.get("allow_partial", False)),
          problem=sm.params.get("problem") or "triaxial",
-         weak_zone_models={"sigma": sm.input.weak_sigma, "tangent": sm.input.weak_tangent} if "weak_sigma" in sm.input.keys() else None)
+         weak_zone_models=weak)

@@ -106,7 +106,7 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
     anchors, anchor_seed = configured_anchors(cfg, n)
     weak = np.flatnonzero(bvp.zones() != 0)
     if weak.size:
-        logger.info("adaptive %s: the %d points of the weak zone are anchors (the networks stand for one material)",
+        logger.info("adaptive %s: the %d points of the weak zone are anchors (the run has the specimen's networks only)",
                     problem, weak.size)
         anchors = np.union1d(anchors, weak)
     t0 = time.perf_counter()
