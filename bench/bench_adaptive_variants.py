@@ -4,7 +4,9 @@ Each variant is a set of `adaptive` settings (threshold, anchor share, correctio
 networks and RVE packings of a finished run of the pipeline; each row says what it cost (DEM
 particle-steps of trials and replays, in % of the FEM–DEM run's; wall time) and how far it is from
 FEM–DEM (top force: max over the path in % of the FEM–DEM peak; stress MAE over every Gauss point
-and step). FEM–ML (the surrogate alone) is the first row of every path. The rows are printed and
+and step), and how many Newton iterations a load step took on average (a correction's dependence
+on a point's own strain is left out of the tangent). FEM–ML (the surrogate alone) is the first
+row of every path. The rows are printed and
 written to the record (--out, default {output_dir}/bench/adaptive_variants.json).
 
     .venv/bin/snakemake -j2 all --configfile config/config.yaml config/new_paths.yaml   # references of path3, path4
@@ -50,6 +52,8 @@ def measure(reference, run, wall: float) -> dict:
         "dem_share_pct": 100 * dem / total,
         "replay_share_pct": 100 * replay / total,
         "dem_points_final": int(run.attrs.get("dem_points_final", 0)),
+        # the correction's dependence on a point's own strain is not in the tangent: does Newton slow down?
+        "newton_iterations_per_step": float(run["newton_iterations"].values[1:steps].mean()),
         "wall_s": wall,
     }
 

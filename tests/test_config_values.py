@@ -125,8 +125,6 @@ def test_the_smallest_sphere_must_be_smaller_than_the_largest():
     ({"surrogate": {"weak_zone_sources": ["rve_paths:band"]}}, "surrogate.weak_zone_sources",
      "drives the specimen's packings"),
     ({"surrogate": {"weak_zone_sources": ["rve_paths:nowhere"]}}, "surrogate.weak_zone_sources", "names no set"),
-    ({"surrogate": {"weak_zone_sources": ["rve_paths:band_weak"]}, "biaxial": {"weak_zone": None}},
-     "surrogate.weak_zone_sources", "has no weak zone"),
     ({"surrogate": {"training_sources": ["path1", "rve_paths:band_weak"]}}, "surrogate.training_sources",
      "another material than the specimen's"),
 ])

@@ -211,8 +211,6 @@ def _check_weak_zone_sources(config: dict) -> None:
     sets = config.get("rve_paths", {}).get("sets", {})
     key = "config key 'surrogate.weak_zone_sources'"
     weak_sources = config["surrogate"]["weak_zone_sources"]
-    if weak_sources and config["biaxial"]["weak_zone"] is None:
-        raise ConfigError(f"{key}: the biaxial test has no weak zone (biaxial.weak_zone is null); set it to []")
     for source in weak_sources:
         name = source.split(":", 1)[1]
         if name not in sets:
