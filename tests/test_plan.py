@@ -193,3 +193,15 @@ def test_the_reference_newton_settings_are_those_the_fem_dem_runs_solve_with():
         solved = dem_newton_config(plan.config)["newton"]
         assert plan.reference_newton == {key: solved[key] for key in ("tolerance", "predictor", "acceleration")}
     assert plan.reference_newton["tolerance"] == 5e-4
+
+
+@pytest.mark.parametrize("scale", ["config.yaml", "tiny.yaml"])
+@pytest.mark.parametrize("test", ["triaxial", "biaxial"])
+def test_the_element_tests_configs_validate_as_their_rule_validates_them(scale, test):
+    """Pass criterion: a rule's script validates the config with its overrides (an element test's:
+    one RVE, a uniform field, no weak zone), so those overrides must make a valid config at every
+    scale; the weak zone's networks are then simply unused."""
+    plan = plan_of(*(["config.yaml"] if scale == "config.yaml" else ["config.yaml", scale]))
+    config = validate_config({**plan.config, **plan.element_test_overrides(test)})
+    if test == "biaxial":
+        assert Plan(config).weak_zone_models("biaxial") == {}
