@@ -33,6 +33,7 @@ def tiny_config(output_dir: Path, segments: dict[str, list], **dem) -> dict:
     config["load_paths"] = {name: {"segments": seg} for name, seg in segments.items()}
     names = list(segments)
     config["training_path"], config["validation_path"] = names[0], names[-1]
-    config.setdefault("surrogate", {})["training_sources"] = [names[0]]  # tiny.yaml's name path1 and rve_paths
+    # tiny.yaml's names path1 and the RVE-path sets: the tests may replace both
+    config.setdefault("surrogate", {}).update(training_sources=[names[0]], weak_zone_sources=[])
     config.setdefault("dem", {}).update({"n_spheres": TEST_SPHERES, **dem})
     return validate_config(config)
