@@ -1,11 +1,10 @@
-"""The off-training check at a commit (surrogate.material._OffTraining) settles most points by
+"""The off-training check at a commit (novelty.OffTrainingTracker) settles most points by
 their last neighbours instead of a k-d tree query: it must give TrainingStates.off's answer exactly,
 commit after commit, as points wander into and out of the training data."""
 
 import numpy as np
 
-from granular_multiscale.novelty import TrainingStates
-from granular_multiscale.surrogate.material import _OffTraining
+from granular_multiscale.novelty import OffTrainingTracker, TrainingStates
 
 
 class CountingTree:
@@ -25,7 +24,7 @@ def test_the_neighbour_bound_gives_the_tree_query_answer_at_every_commit():
     states = TrainingStates(rng.uniform(size=(3000, 4)) * slab)
     reference = TrainingStates(states.tree.data * states.span + states.lo, radius=states.radius)
     states.tree = CountingTree(states.tree)
-    check = _OffTraining(states)
+    check = OffTrainingTracker(states)
     n, steps = 40, 60
     start = rng.uniform(size=(n, 4)) * slab
     drift = rng.normal(scale=0.003, size=(n, 4))

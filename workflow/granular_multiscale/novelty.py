@@ -49,6 +49,43 @@ class TrainingStates:
         return self.distance(features) > self.radius
 
 
+class OffTrainingTracker:
+    """Which committed states are off the training data: exactly :meth:`TrainingStates.off`'s answer,
+    without a k-d tree query for the points that are surely inside.
+
+    The k training states nearest to a point when it was last queried are still k training
+    states, at distances of at most the largest of theirs to its new state: when that bound is
+    inside the radius, so is the k-th nearest. Between two commits a point moves little against the
+    radius, so most points are settled by k distances; the others are queried as before, and their
+    neighbours renewed. (A query of all 128 points of the triaxial specimen against 20 000 training
+    states takes about 1.5 ms, a tenth of the FEM–ML run of Path2 when made at every commit.) The
+    bound must clear the radius by a margin (1e-9 of it), so that round-off never decides."""
+
+    MARGIN = 1e-9
+
+    def __init__(self, states: TrainingStates):
+        self.states = states
+        self.neighbours: np.ndarray | None = None  # [n, k] of each point's last query
+
+    def __call__(self, features: np.ndarray) -> np.ndarray:
+        """[n, f] features -> [n] True where the k-th nearest training state is farther than the radius."""
+        states = self.states
+        scaled = (features - states.lo) / states.span
+        if self.neighbours is None or self.neighbours.shape[0] != scaled.shape[0]:
+            self.neighbours = np.zeros((scaled.shape[0], states.k), dtype=np.intp)
+            asked = np.ones(scaled.shape[0], dtype=bool)
+        else:
+            bound = np.linalg.norm(states.tree.data[self.neighbours] - scaled[:, None, :], axis=-1).max(axis=1)
+            asked = bound > states.radius * (1.0 - self.MARGIN)
+        off = np.zeros(scaled.shape[0], dtype=bool)
+        if asked.any():
+            distance, index = states.tree.query(scaled[asked], k=states.k)
+            n_asked = int(asked.sum())
+            off[asked] = distance.reshape(n_asked, -1)[:, -1] > states.radius
+            self.neighbours[asked] = index.reshape(n_asked, -1)
+        return off
+
+
 def sample_states(features: np.ndarray, n_max: int, seed: int) -> np.ndarray:
     """At most `n_max` of the rows of `features` [n, f], drawn without replacement (all when fewer):
     what a model file keeps of its training inputs."""

@@ -69,7 +69,7 @@ import torch
 
 from ..history import HIST, accumulate, history_jacobian_torch, history_variables, running_peak, strain_norms
 from ..materials.base import MaterialPointSet
-from ..novelty import NEIGHBOURS, NOVELTY_QUANTILE, TrainingStates
+from ..novelty import NEIGHBOURS, NOVELTY_QUANTILE, OffTrainingTracker, TrainingStates
 from ..tensors import ENGINEERING_FACTOR, UPPER, voigt_to_tensor
 from .dataset import STRAIN_FEATURES
 from .models import SurrogateModel, trial_features
@@ -103,43 +103,6 @@ def relative_spread(spread: np.ndarray, stress: np.ndarray, confining_pressure: 
 def method_name(tangent: str, use_history: bool = True) -> str:
     """Name written to the run file's `method` attribute, e.g. 'fem_ml_nn', 'fem_ml_nohist_autodiff'."""
     return f"fem_ml_{'' if use_history else 'nohist_'}{tangent}"
-
-
-class _OffTraining:
-    """Which committed states are off the training data: exactly ``TrainingStates.off``'s answer,
-    without a k-d tree query for the points that are surely inside.
-
-    The k training states nearest to a point when it was last queried are still k training
-    states, at distances of at most the largest of theirs to its new state: when that bound is
-    inside the radius, so is the k-th nearest. Between two commits a point moves little against the
-    radius, so most points are settled by k distances; the others are queried as before, and their
-    neighbours renewed. (A query of all 128 points of the triaxial specimen against 20 000 training
-    states takes about 1.5 ms, a tenth of the FEM–ML run of Path2 when made at every commit.) The
-    bound must clear the radius by a margin (1e-9 of it), so that round-off never decides."""
-
-    MARGIN = 1e-9
-
-    def __init__(self, states: TrainingStates):
-        self.states = states
-        self.neighbours: np.ndarray | None = None  # [n, k] of each point's last query
-
-    def __call__(self, features: np.ndarray) -> np.ndarray:
-        """[n, f] features -> [n] True where the k-th nearest training state is farther than the radius."""
-        states = self.states
-        scaled = (features - states.lo) / states.span
-        if self.neighbours is None or self.neighbours.shape[0] != scaled.shape[0]:
-            self.neighbours = np.zeros((scaled.shape[0], states.k), dtype=np.intp)
-            asked = np.ones(scaled.shape[0], dtype=bool)
-        else:
-            bound = np.linalg.norm(states.tree.data[self.neighbours] - scaled[:, None, :], axis=-1).max(axis=1)
-            asked = bound > states.radius * (1.0 - self.MARGIN)
-        off = np.zeros(scaled.shape[0], dtype=bool)
-        if asked.any():
-            distance, index = states.tree.query(scaled[asked], k=states.k)
-            n_asked = int(asked.sum())
-            off[asked] = distance.reshape(n_asked, -1)[:, -1] > states.radius
-            self.neighbours[asked] = index.reshape(n_asked, -1)
-        return off
 
 
 class SurrogateMaterial(MaterialPointSet):
@@ -186,7 +149,7 @@ class SurrogateMaterial(MaterialPointSet):
         states = sigma_model.training_states
         self._training_states = (TrainingStates(states, radius=sigma_model.training_radius)
                                  if states is not None and len(states) > NEIGHBOURS else None)
-        self._off_training = _OffTraining(self._training_states) if self._training_states is not None else None
+        self._off_training = OffTrainingTracker(self._training_states) if self._training_states is not None else None
         self._off_training_most = 0  # the most points off the training data in one committed state yet
         self.anchor_initial_state = bool(anchor_initial_state)
         self._sigma_offset = self._offset(self.sigma_model)
