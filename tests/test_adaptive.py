@@ -239,9 +239,9 @@ def test_threshold_infinity_is_fem_ml(setup, fem_ml_run, tmp_path):
 
 @pytest.mark.needs_yade
 def test_the_off_training_indicator_is_the_distance_to_the_training_states(setup, fem_ml_run, tmp_path):
-    """Indicator off_training at threshold ∞: the run is FEM–ML, and at each converged step it
-    records d / r − 1 (0 inside) of FEM–ML's inputs against the training states the model file
-    keeps; networks whose file keeps none are refused naming the key."""
+    """Indicators off_training and distance at threshold ∞: the run is FEM–ML, and at each converged
+    step it records d / r − 1 (0 inside), or d / r, of FEM–ML's inputs against the training states
+    the model file keeps; networks whose file keeps none are refused naming the key."""
     from granular_multiscale.analysis.problem_surrogate import run_features
     from granular_multiscale.novelty import TrainingStates
     from granular_multiscale.surrogate.models import SurrogateModel
@@ -251,14 +251,20 @@ def test_the_off_training_indicator_is_the_distance_to_the_training_states(setup
     run = run_adaptive(config, "p", np.inf, packings, sigma, None, "autodiff", n_workers=2)
     model = SurrogateModel.load(sigma)
     states = TrainingStates(model.training_states, radius=model.training_radius)
-    expected = np.maximum(states.distance(run_features(fem_ml_run, model.history)) / states.radius - 1.0, 0.0)
+    ratio = states.distance(run_features(fem_ml_run, model.history)) / states.radius
+    expected = np.maximum(ratio - 1.0, 0.0)
     np.testing.assert_allclose(run.indicator.values, expected, rtol=1e-9, atol=1e-12)
     assert (expected > 0).any() and (expected == 0).any()  # points inside the data and beyond it
     assert not run.point_mode.values.any()
+    distance = {**config, "adaptive": {**config["adaptive"], "indicator": "distance"}}
+    run = run_adaptive(distance, "p", np.inf, packings, sigma, None, "autodiff", n_workers=2)
+    np.testing.assert_allclose(run.indicator.values, ratio, rtol=1e-9, atol=1e-12)
+    assert len(np.unique(np.round(ratio[ratio < 1], 9))) > 1  # it ranks the states inside the data too
     model.training_states = None
     model.save(tmp_path / "without.pt")
-    with pytest.raises(ValueError, match="adaptive.indicator"):
-        run_adaptive(config, "p", np.inf, packings, str(tmp_path / "without.pt"), None, "autodiff", n_workers=2)
+    for cfg in (config, distance):
+        with pytest.raises(ValueError, match="adaptive.indicator"):
+            run_adaptive(cfg, "p", np.inf, packings, str(tmp_path / "without.pt"), None, "autodiff", n_workers=2)
 
 
 @pytest.mark.needs_yade

@@ -25,6 +25,10 @@ Indicator (``adaptive.indicator``), per point, from the surrogate's answer at th
   distance to its 5th-nearest training state and r the distance within which 99 % of the training
   states have theirs (0 inside the data; :meth:`SurrogateMaterial.trial_novelty`, ``novelty``).
   Unlike the box of ``out_of_range`` it sees a combination of inputs no training state has.
+* ``distance``: d / r itself (:meth:`SurrogateMaterial.trial_distance_ratio`): it also ranks the
+  points inside the data, where ``off_training`` is 0 for all of them. Where the networks' error
+  grows with the distance to what they learnt (the footing: rank correlation 0.85 after the peak),
+  a threshold below 1 promotes the points in the sparsest part of the data first.
 
 A surrogate point is promoted when its indicator is **≥ threshold**: threshold 0 is DEM at every
 point from the first evaluation on (FEM–DEM), threshold ∞ never (FEM–ML).
@@ -104,7 +108,7 @@ from ..dem.subset import DemSubsetMaterialPointSet
 from ..materials.base import MaterialPointSet
 from ..surrogate.material import SurrogateMaterial, relative_spread
 
-INDICATORS = ("spread", "out_of_range", "max", "off_training")
+INDICATORS = ("spread", "out_of_range", "max", "off_training", "distance")
 #: the indicator of a control run: the promotions of another run, copied
 SCHEDULE = "schedule"
 CORRECTIONS = ("none", "kernel", "local_kernel")
@@ -159,7 +163,7 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
             raise ValueError(f"config key 'adaptive.indicator' must be one of {INDICATORS}, got {indicator!r}")
         if not out_of_range_weight >= 0.0:
             raise ValueError(f"config key 'adaptive.out_of_range_weight' must be >= 0, got {out_of_range_weight}")
-        if indicator == "off_training" and schedule is None and not surrogate.knows_training_states:
+        if indicator in ("off_training", "distance") and schedule is None and not surrogate.knows_training_states:
             raise ValueError("config key 'adaptive.indicator' 'off_training' needs networks whose model file keeps "
                              "their training states: retrain them (rules train_*)")
         if correction not in CORRECTIONS:
@@ -211,6 +215,8 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
         """[n] the indicator of the surrogate's last evaluation, whose stress was `stress`."""
         if self.indicator == "off_training":
             return self.surrogate.trial_novelty()
+        if self.indicator == "distance":
+            return self.surrogate.trial_distance_ratio()
         spread, excess = self.surrogate.trial_uncertainty()
         if self.indicator == "out_of_range":
             return excess

@@ -328,16 +328,20 @@ class SurrogateMaterial(MaterialPointSet):
         """Whether the model file kept its training inputs (what :meth:`trial_novelty` needs)."""
         return self._training_states is not None
 
-    def trial_novelty(self) -> np.ndarray:
-        """[n] of the last evaluation: how far each point is beyond the training data, the distance
-        to its k-th nearest training state over the radius that 99 % of the training states are
-        within, minus 1 (0 inside the data; 1 at twice the radius)."""
+    def trial_distance_ratio(self) -> np.ndarray:
+        """[n] of the last evaluation: each point's distance to its k-th nearest training state over
+        the radius that 99 % of the training states are within (1 at the edge of the data)."""
         if self._trial is None:
-            raise RuntimeError(f"{type(self).__name__}.trial_novelty() needs an evaluation first")
+            raise RuntimeError(f"{type(self).__name__}.trial_distance_ratio() needs an evaluation first")
         if self._training_states is None:
             raise ValueError("the NNσ model file keeps no training states (trained before they were kept): "
                              "retrain it to measure the distance to the training data")
-        return np.maximum(self._distance_to_training() / self._training_states.radius - 1.0, 0.0)
+        return self._distance_to_training() / self._training_states.radius
+
+    def trial_novelty(self) -> np.ndarray:
+        """[n] of the last evaluation: how far each point is beyond the training data,
+        :meth:`trial_distance_ratio` minus 1 (0 inside the data; 1 at twice the radius)."""
+        return np.maximum(self.trial_distance_ratio() - 1.0, 0.0)
 
     def _distance_to_training(self) -> np.ndarray:
         """[n] the last evaluation's distance to the k-th nearest training state (the indicator and the
