@@ -3,7 +3,7 @@
 One training's seed moves its errors; a result is the surrogate's only if it holds across
 trainings. For the pipeline's networks (training 0, seed `seed`) and each further seed, the
 validation path's FEM–ML run, each problem's FEM–ML run and the biaxial test's adaptive run at
-`adaptive.problem_threshold` (the weak zone in DEM) against their FEM–DEM references: force
+its section's `adaptive` settings (the weak zone in DEM) against their FEM–DEM references: force
 (largest error, up to the reference's peak and after it) and volumetric strain in % of their
 peaks, band inclination and onset against the reference's, stress MAE inside and outside the band
 (under the footing and elsewhere), DEM share and wall time — the columns of the problems'
@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from granular_multiscale.analysis.problem_surrogate import comparison_table, rank_correlation_after_peak, run_features
+from granular_multiscale.config import problem_adaptive_config
 from granular_multiscale.data import read_run, write_run
 from granular_multiscale.drivers.adaptive import run_adaptive
 from granular_multiscale.drivers.fem_ml import run_fem_ml
@@ -106,10 +107,10 @@ def runs_of(plan: Plan, models: dict | None, folder: Path, workers: int, logger)
              fem_ml(problem, case, weak if problem == "biaxial" else None))
     if adaptive:
         case = cases["biaxial"]
+        biaxial_config, threshold = problem_adaptive_config(config, "biaxial")
         made("adaptive biaxial", "biaxial", folder / "biaxial" / plan.problem_adaptive_method / f"{case}.h5",
              lambda file: run_adaptive(
-                 config, case, plan.problem_threshold, plan.packings, specimen["sigma"], specimen["tangent"],
-                 tangent, output=file, checkpoint=file.with_suffix(".ckpt"), n_workers=workers, logger=logger,
+                 biaxial_config, case, threshold, plan.packings, specimen["sigma"], specimen["tangent"], tangent, output=file, checkpoint=file.with_suffix(".ckpt"), n_workers=workers, logger=logger,
                  allow_partial=True, problem="biaxial", weak_packing=plan.weak_packing_input("biaxial")[0]))
     return runs
 

@@ -5,7 +5,7 @@ promotions of a network run), written in the data contract plus the mode of ever
 and the DEM answers of the points that ran DEM (training data of the active-learning round).
 Resumes from its checkpoint."""
 
-from granular_multiscale.config import validate_config
+from granular_multiscale.config import problem_adaptive_config, validate_config
 from granular_multiscale.drivers.adaptive import run_adaptive
 from granular_multiscale.runlog import setup_logging, timed_rule
 
@@ -15,6 +15,8 @@ def main(config: dict, path_name: str, threshold: float, packings: list[str], si
          allow_partial: bool, problem: str = "triaxial", weak_packing: str | None = None,
          control: str | None = None, schedule_from: str | None = None) -> None:
     config = validate_config(config)
+    if problem != "triaxial":  # the problem's own adaptive settings (its threshold comes as `threshold`)
+        config = problem_adaptive_config(config, problem)[0]
     logger = setup_logging(log)
     # local pool: one worker per core the rule got; Dask: dem.n_workers actors on the cluster
     workers = threads if config["dem"]["executor"] == "local" else config["dem"]["n_workers"]

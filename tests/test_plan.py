@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from granular_multiscale.config import CONFIG_DIR, merged, read_config_file, validate_config
@@ -93,21 +94,26 @@ def test_labels_and_run_sets_of_the_products():
 
 
 def test_the_surrogate_on_the_problems_beside_its_controls():
-    """Default scale: per problem the reference, FEM–ML, the analytic model alone, the adaptive run (no
-    promotions: DEM at the weak zone only) and its control, and the products of each; the tiny scale
-    (no adaptive report) keeps the runs without DEM."""
-    plan = plan_of("config.yaml")  # adaptive.problems at threshold .inf: DEM at the weak zone only
+    """Default scale: per problem the reference, FEM–ML, the analytic model alone, the adaptive run
+    (biaxial: no promotions, DEM at the weak zone only; footing: promoted by the distance to the
+    training data) and its control, and the products of each; the tiny scale (no adaptive report)
+    keeps the runs without DEM."""
+    plan = plan_of("config.yaml")
     assert list(plan.problem_comparison("biaxial", "biaxial").items()) == [
         ("FEM–DEM (400 spheres)", "out/biaxial/fem_dem/biaxial.h5"),
         ("FEM–ML (autodiff tangent)", "out/biaxial/fem_ml/biaxial.h5"),
         ("FEM, elastoplastic model fitted to Path1 (no networks)", "out/biaxial/fem_elastoplastic/biaxial.h5"),
-        ("adaptive FEM–DEM–ML, no promotions (DEM at the anchors)", "out/biaxial/adaptive_tinf/biaxial.h5"),
+        ("adaptive FEM–DEM–ML, no promotions (DEM at the anchors)", "out/biaxial/adaptive/biaxial.h5"),
         ("control: elastoplastic model fitted to Path1 + the same DEM points",
-         "out/biaxial/control_elastoplastic_tinf/biaxial.h5")]
+         "out/biaxial/control_elastoplastic/biaxial.h5")]
+    assert plan.problem_threshold("biaxial") == np.inf and plan.problem_threshold("footing") == 0.6
+    assert list(plan.problem_adaptive_runs("footing", "footing"))[0] == "adaptive FEM–DEM–ML, distance ≥ 0.6"
     assert plan.layout.problem_dem_points("footing", plan.problem_adaptive_method, "footing") == \
-        "out/footing/adaptive_tinf/dem_points/footing.h5"
-    promoting = plan_of("config.yaml", adaptive={"report": True, "problems": True, "problem_threshold": 0.02})
-    assert promoting.problem_adaptive_method == "adaptive_t0.02"
+        "out/footing/adaptive/dem_points/footing.h5"
+    # the footing's adaptive run depends on its own settings over the adaptive section; the biaxial's does not
+    footing, biaxial = (plan.problem_surrogate_definition(p, adaptive=True) for p in ("footing", "biaxial"))
+    assert footing["adaptive"]["indicator"] == "distance" and biaxial["adaptive"]["indicator"] == "spread"
+    assert "threshold" not in footing["adaptive"] and footing["section"]["adaptive"]["threshold"] == 0.6
     targets = plan.all_targets()
     assert {"out/tables/biaxial/surrogate_biaxial.csv", "out/tables/footing/surrogate_footing.csv",
             "out/tables/visited_states.csv"} <= set(targets)
@@ -120,13 +126,15 @@ def test_the_surrogate_on_the_problems_beside_its_controls():
     other = plan_of("config.yaml", adaptive={"report": True, "problems": True, "thresholds": [0.5]})
     assert other.problem_surrogate_definition("biaxial", True) == plan.problem_surrogate_definition("biaxial", True)
     assert "dem" not in plan.problem_surrogate_definition("biaxial")  # FEM–ML runs no DEM
-    # the default `all` runs the problems' adaptive runs at .inf beside FEM–ML; without adaptive.problems
+    # the default `all` runs the problems' adaptive runs beside FEM–ML; without adaptive.problems
     # they are target problem_adaptive_runs
     assert plan.problem_adaptive
-    off = plan_of("config.yaml", adaptive={"report": True, "problems": False, "problem_threshold": 0.02})
+    off = plan_of("config.yaml", adaptive={"report": True, "problems": False}, biaxial={"adaptive": {"threshold": 0.02}})
     assert not off.problem_adaptive and len(off.problem_comparison("biaxial", "biaxial")) == 3
-    assert list(off.problem_adaptive_runs("biaxial", "biaxial").values()) == [
-        "out/biaxial/adaptive_t0.02/biaxial.h5", "out/biaxial/control_elastoplastic_t0.02/biaxial.h5"]
+    assert list(off.problem_adaptive_runs("biaxial", "biaxial").items()) == [
+        ("adaptive FEM–DEM–ML, threshold 0.02", "out/biaxial/adaptive/biaxial.h5"),
+        ("control: elastoplastic model fitted to Path1 + the same DEM points", "out/biaxial/control_elastoplastic/biaxial.h5")]
+    assert off.problem_threshold("biaxial") == 0.02
     both = plan_of("config.yaml", adaptive={"report": True, "problems": True,
                                             "controls": ["linear_elastic", "elastoplastic"]})
     assert list(both.problem_comparison("footing", "footing"))[-2:] == [

@@ -306,6 +306,16 @@ NEWTON_OVERRIDES = ("tolerance", "max_iterations", "max_cutbacks", "line_search"
                     "anderson_depth", "predictor")
 
 
+def problem_adaptive_config(config: dict, problem: str) -> tuple[dict, float]:
+    """The config and threshold of the adaptive run of `problem` (biaxial, footing): the section
+    ``adaptive`` with the keys the problem's ``adaptive`` sets, and that section's threshold."""
+    settings = dict(config[problem]["adaptive"])
+    threshold = float(settings.pop("threshold"))
+    cfg = copy.deepcopy(config)
+    cfg["adaptive"].update(settings)
+    return cfg, threshold
+
+
 def dem_newton_config(config: dict, problem: str = "triaxial") -> dict:
     """The config a FEM–DEM run of `problem` uses: ``newton`` with the overrides of ``dem.newton``,
     and then those of the problem's ``dem_newton`` (the plane-strain problems' sections)."""

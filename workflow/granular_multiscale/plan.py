@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 
 from .adaptive import threshold_label
-from .config import dem_newton_config
+from .config import dem_newton_config, problem_adaptive_config
 from .paths import load_paths_from_config
 
 # network name -> (what it predicts, whether it reads the history variables)
@@ -44,12 +44,14 @@ ACTIVE_ROUNDS = {"first": "", "after one round": "active/"}
 WEAK_ZONE_ROUND = "weak_zone/"
 
 
-def adaptive_label(threshold: float) -> str:
-    """What the tables and figures call an adaptive run: 'adaptive FEM–DEM–ML, threshold 0.02'; at an
-    infinite threshold no point is promoted: DEM only at its anchors (a problem's weak zone)."""
+def adaptive_label(threshold: float, indicator: str | None = None) -> str:
+    """What the tables and figures call an adaptive run: 'adaptive FEM–DEM–ML, threshold 0.02', with
+    `indicator` 'adaptive FEM–DEM–ML, distance ≥ 0.5'; at an infinite threshold no point is
+    promoted: DEM only at its anchors (a problem's weak zone)."""
     if math.isinf(threshold):
         return "adaptive FEM–DEM–ML, no promotions (DEM at the anchors)"
-    return f"adaptive FEM–DEM–ML, threshold {threshold:g}"
+    return f"adaptive FEM–DEM–ML, {indicator} ≥ {threshold:g}" if indicator else \
+        f"adaptive FEM–DEM–ML, threshold {threshold:g}"
 
 
 def path_label(path: str) -> str:
@@ -221,10 +223,9 @@ class Plan:
         self.weak_zone = config["biaxial"]["weak_zone"]
         self.biaxial_meshes = ["x".join(map(str, m)) for m in config["analysis"]["biaxial_meshes"]]
         # the surrogate on the problems: FEM–ML, and with a DEM reference, adaptive.report and
-        # adaptive.problems the adaptive run at adaptive.problem_threshold beside its controls (the same
-        # promotions, an analytic model instead of the networks)
-        self.problem_threshold = float(adaptive["problem_threshold"])
-        self.problem_adaptive_method = f"adaptive_{threshold_label(self.problem_threshold)}"
+        # adaptive.problems the adaptive run (the problem's section, key adaptive) beside its controls
+        # (the same promotions, an analytic model instead of the networks)
+        self.problem_adaptive_method = "adaptive"
         self.controls = list(adaptive["controls"])
         self.problem_adaptive = self.adaptive_in_report and bool(self.problems) and adaptive["problems"]
 
@@ -413,8 +414,12 @@ class Plan:
         return [self.layout.weak_packing()] if problem == "biaxial" and self.weak_zone is not None else []
 
     def control_method(self, control: str) -> str:
-        """The run folder of a control of the problems' adaptive run: 'control_elastoplastic_t0.02'."""
-        return f"control_{control}_{threshold_label(self.problem_threshold)}"
+        """The run folder of a control of the problems' adaptive run: 'control_elastoplastic'."""
+        return f"control_{control}"
+
+    def problem_threshold(self, problem: str) -> float:
+        """The threshold of a problem's adaptive run (its section's adaptive.threshold)."""
+        return problem_adaptive_config(self.config, problem)[1]
 
     def problem_surrogate_definition(self, problem: str, adaptive: bool = False) -> dict:
         """What a FEM–ML (or with `adaptive`, an adaptive) run of `problem` depends on besides its inputs."""
@@ -423,15 +428,18 @@ class Plan:
                       "surrogate_newton": s["newton"], "anchor_initial_state": s["anchor_initial_state"],
                       "out_of_range_tolerance": s["out_of_range_tolerance"], "other_pressure": s["other_pressure"]}
         if adaptive:
-            section = {k: v for k, v in c["adaptive"].items() if k not in ("thresholds", "paths", "report",
-                                                                           "active_learning", "controls", "problems")}
+            merged = problem_adaptive_config(c, problem)[0]["adaptive"]
+            section = {k: v for k, v in merged.items() if k not in ("thresholds", "paths", "report",
+                                                                    "active_learning", "controls", "problems")}
             definition.update({"dem": self.run_definition, "adaptive": section, "seed": c["seed"]})
         return definition
 
     def problem_adaptive_runs(self, problem: str, case: str) -> dict[str, str]:
         """{label: run file} of a problem's adaptive run and its controls."""
         L = self.layout
-        runs = {adaptive_label(self.problem_threshold): L.problem_run(problem, self.problem_adaptive_method, case)}
+        cfg, threshold = problem_adaptive_config(self.config, problem)
+        indicator = cfg["adaptive"]["indicator"] if "indicator" in self.config[problem]["adaptive"] else None
+        runs = {adaptive_label(threshold, indicator): L.problem_run(problem, self.problem_adaptive_method, case)}
         for control in self.controls:
             runs[f"control: {CONTROL_LABEL[control]} + the same DEM points"] = L.problem_run(
                 problem, self.control_method(control), case)

@@ -5,9 +5,10 @@
 #                             biaxial test's weak zone, with surrogate.weak_zone_sources); a run that
 #                             stops keeps its converged steps (completed = 0) and the table says
 #                             where it stopped
-#   problem_adaptive          {OUT}/{problem}/adaptive_t<threshold>/{case}.h5 (adaptive.problem_threshold;
-#                             the weak zone's points are anchors) and its DEM answers under dem_points/
-#   problem_adaptive_control  {OUT}/{problem}/control_{control}_t<threshold>/{case}.h5 for each model of
+#   problem_adaptive          {OUT}/{problem}/adaptive/{case}.h5 (the problem's section, key adaptive:
+#                             threshold, indicator, ...; the weak zone's points are anchors) and its DEM
+#                             answers under dem_points/
+#   problem_adaptive_control  {OUT}/{problem}/control_{control}/{case}.h5 for each model of
 #                             adaptive.controls: the networks replaced by that analytic model, the DEM
 #                             points and their promotion steps copied from problem_adaptive's run
 #   problem_surrogate_products  tables/{problem}/surrogate_{case}.{csv,html} and the figures
@@ -57,7 +58,7 @@ use rule adaptive as problem_adaptive with:
     benchmark:
         L.benchmark(f"{{problem}}/{PLAN.problem_adaptive_method}/{{case}}")
     params:
-        threshold=PLAN.problem_threshold,
+        threshold=lambda wc: PLAN.problem_threshold(wc.problem),
         checkpoint=L.checkpoint(f"{{problem}}/{PLAN.problem_adaptive_method}/{{case}}"),
         tangent=config["surrogate"]["tangent"],
         allow_partial=True,
@@ -79,7 +80,7 @@ use rule adaptive as problem_adaptive_control with:
     benchmark:
         L.benchmark(f"{{problem}}/{PLAN.control_method('{control}')}/{{case}}")
     params:
-        threshold=PLAN.problem_threshold,
+        threshold=lambda wc: PLAN.problem_threshold(wc.problem),
         checkpoint=L.checkpoint(f"{{problem}}/{PLAN.control_method('{control}')}/{{case}}"),
         tangent=config["surrogate"]["tangent"],
         allow_partial=True,
