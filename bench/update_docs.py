@@ -205,6 +205,36 @@ def _number(value, digits: int = 2) -> str:
     return "–" if value is None or value != value else f"{value:.{digits}f}"
 
 
+def problem_table(rows: list[dict], problem: str) -> list[str]:
+    """The lines of a problem's surrogate table (``analysis/problem_surrogate.py`` columns), a row
+    per run: the problems' runs of `all`, a bench's adaptive variants or other FEM–DEM runs."""
+    zone = "in the band" if problem == "biaxial" else "under the footing"
+    rest = "outside the band" if problem == "biaxial" else "elsewhere"
+    band = problem == "biaxial"
+    lines = ["| run | steps | force max error, up to / after the peak (% of peak) | vol. strain max error (% of peak) "
+             f"| σ MAE {zone} / {rest} (kPa) |" + (" band inclination, onset (Δ to the reference) |" if band else "")
+             + " spread–error ρ, error / spread | DEM particle-steps | DEM points at the end (% " + zone + ") | wall |",
+             "| --- | --- | --- | --- | --- |" + (" --- |" if band else "") + " --- | --- | --- | --- |"]
+    for row in rows:
+        dem_points = row.get("DEM points at the end")
+        where = row.get(f"DEM points at the end {zone} (%)")
+        line = (f"| {row['run']} | {row['steps reached']} | {_number(row['force: up to the peak (%)'])} / "
+                f"{_number(row['force: after the peak (%)'])} | "
+                f"{_number(row['volumetric strain: largest error (% of its peak)'], 1)} | "
+                f"{_number(row[f'stress MAE {zone} (kPa)'], 1)} / {_number(row[f'stress MAE {rest} (kPa)'], 1)} |")
+        if band:
+            line += (f" {_number(row['band inclination (deg)'], 1)}° ({row['inclination − reference (deg)']:+.1f}°), "
+                     f"{_number(row['band onset: axial strain (%)'])} % ({_number(row['onset − reference (% strain)'])}) |")
+        dem = row["DEM particle-steps (% of the reference's)"]
+        line += (f" {_number(row.get('spread–error rank correlation (after the peak)'))}, "
+                 f"{_number(row.get('median error / spread'))} | "
+                 f"{'–' if dem != dem or not dem else f'{dem:.1f} %'} | "
+                 f"{'–' if dem_points is None or dem_points != dem_points else f'{dem_points:.0f} ({_number(where, 0)} %)'} | "
+                 f"{row['wall time (s)']:.1f} s |")
+        lines.append(line)
+    return lines
+
+
 def render_problems(record: dict) -> str:
     """Every method on the biaxial test and the footing against their FEM–DEM runs (one table each)."""
     lines = []
@@ -214,33 +244,34 @@ def render_problems(record: dict) -> str:
             continue
         rows = rows_of(record, f"{problem}/surrogate_{problem}.csv")
         zone = "in the band" if problem == "biaxial" else "under the footing"
-        rest = "outside the band" if problem == "biaxial" else "elsewhere"
-        band = problem == "biaxial"
         lines += [f"{title}, {run_label(record)}, against {rows[0]['run']} ({rows[0]['wall time (s)']:.0f} s; "
-                  f"{rows[0][f'Gauss points {zone}']} of its Gauss points {zone}):", "",
-                  "| run | steps | force max error, up to / after the peak (% of peak) | vol. strain max error (% of peak) "
-                  f"| σ MAE {zone} / {rest} (kPa) |" + (" band inclination, onset (Δ to the reference) |" if band else "")
-                  + " spread–error ρ, error / spread | DEM particle-steps | DEM points at the end (% " + zone + ") | wall |",
-                  "| --- | --- | --- | --- | --- |" + (" --- |" if band else "") + " --- | --- | --- | --- |"]
-        for row in rows[1:]:
-            dem_points = row.get("DEM points at the end")
-            where = row.get(f"DEM points at the end {zone} (%)")
-            line = (f"| {row['run']} | {row['steps reached']} | {_number(row['force: up to the peak (%)'])} / "
-                    f"{_number(row['force: after the peak (%)'])} | "
-                    f"{_number(row['volumetric strain: largest error (% of its peak)'], 1)} | "
-                    f"{_number(row[f'stress MAE {zone} (kPa)'], 1)} / {_number(row[f'stress MAE {rest} (kPa)'], 1)} |")
-            if band:
-                line += (f" {_number(row['band inclination (deg)'], 1)}° ({row['inclination − reference (deg)']:+.1f}°), "
-                         f"{_number(row['band onset: axial strain (%)'])} % ({_number(row['onset − reference (% strain)'])}) |")
-            dem = row["DEM particle-steps (% of the reference's)"]
-            line += (f" {_number(row['spread–error rank correlation (after the peak)'])}, "
-                     f"{_number(row['median error / spread'])} | "
-                     f"{'–' if dem != dem or not dem else f'{dem:.1f} %'} | "
-                     f"{'–' if dem_points is None or dem_points != dem_points else f'{dem_points:.0f} ({_number(where, 0)} %)'} | "
-                     f"{row['wall time (s)']:.1f} s |")
-            lines.append(line)
-        lines.append("")
+                  f"{rows[0][f'Gauss points {zone}']} of its Gauss points {zone}):", ""]
+        lines += problem_table(rows[1:], problem) + [""]
     return "\n".join(lines)
+
+
+def render_reference_scatter(record: dict) -> str:
+    """Other FEM–DEM runs of a problem against the pipeline's (bench_reference_scatter)."""
+    f = record["figures"]
+    finished = [r for r in f["rows"] if "error" not in r]
+    failed = [r for r in f["rows"] if "error" in r]
+    lines = [f"{record['date'].split()[0]}, commit {record['commit'][:7]}, {f['problem']}, against the run at "
+             f"{f['base']} (the pipeline's):", ""]
+    lines += problem_table(finished[1:], f["problem"])
+    lines += [f"| {r['run']} | stopped: {r['error'][:120]} |" for r in failed]
+    return "\n".join(lines) + "\n"
+
+
+def render_adaptive_variants(record: dict) -> str:
+    """A problem's adaptive variants and their controls beside FEM–ML (bench_adaptive_variants --problems)."""
+    rows = [r for r in record["figures"] if "problem" in r]
+    models = record["settings"].get("models")
+    lines = [f"{record['date'].split()[0]}, commit {record['commit'][:7]}, "
+             (f"the networks of training {Path(models).parent.name} (bench_trainings)" if models
+              else "the pipeline's networks") + ":", ""]
+    for problem in dict.fromkeys(r["problem"] for r in rows):
+        lines += problem_table([r for r in rows if r["problem"] == problem], problem)
+    return "\n".join(lines) + "\n"
 
 
 def render_problem_references(record: dict) -> str:
@@ -372,7 +403,8 @@ def render_fem_ml_vs_dem(record: dict) -> str:
 RENDERERS = {"headline": render_headline, "rules": render_rules, "fem_ml": render_fem_ml, "problems": render_problems,
              "problem_references": render_problem_references, "rve_paths": render_rve_paths,
              "ensemble_resampling": render_ensemble_resampling, "strain_rate": render_strain_rate,
-             "fem_ml_vs_dem": render_fem_ml_vs_dem, "trainings": render_trainings}
+             "fem_ml_vs_dem": render_fem_ml_vs_dem, "trainings": render_trainings,
+             "reference_scatter": render_reference_scatter, "adaptive_variants": render_adaptive_variants}
 
 
 def rewrite(text: str, document: str) -> str:
