@@ -266,9 +266,9 @@ def render_adaptive_variants(record: dict) -> str:
     """A problem's adaptive variants and their controls beside FEM–ML (bench_adaptive_variants --problems)."""
     rows = [r for r in record["figures"] if "problem" in r]
     models = record["settings"].get("models")
-    lines = [f"{record['date'].split()[0]}, commit {record['commit'][:7]}, "
-             (f"the networks of training {Path(models).parent.name} (bench_trainings)" if models
-              else "the pipeline's networks") + ":", ""]
+    networks = f"the networks of training {Path(models).parent.name} (bench_trainings)" if models else \
+        "the pipeline's networks"
+    lines = [f"{record['date'].split()[0]}, commit {record['commit'][:7]}, {networks}:", ""]
     for problem in dict.fromkeys(r["problem"] for r in rows):
         lines += problem_table([r for r in rows if r["problem"] == problem], problem)
     return "\n".join(lines) + "\n"
