@@ -71,6 +71,16 @@ def measure(reference, run, wall: float) -> dict:
     }
 
 
+def variant_config(config: dict, text: str) -> tuple[dict, float, str]:
+    """The validated config of a variant 'key=value,...' of the section adaptive, its threshold and
+    its name (the folder of its runs)."""
+    variant = parse_variant(text)
+    threshold = float(variant.pop("threshold"))
+    cfg = copy.deepcopy(config)
+    cfg["adaptive"].update(variant)
+    return validate_config(cfg), threshold, variant_name({**variant, "threshold": threshold})
+
+
 def problem_rows(plan: Plan, problem: str, variants: list[str], controls: bool, folder: Path, workers: int,
                  models: Path | None = None) -> list[dict]:
     """FEM–ML and every variant (and its controls) on the first load path of `problem`, against
@@ -97,12 +107,7 @@ def problem_rows(plan: Plan, problem: str, variants: list[str], controls: bool, 
                              or None), file, config)
     runs = {"FEM–ML": read_run(file)}
     for text in variants:
-        variant = parse_variant(text)
-        threshold = float(variant.pop("threshold"))
-        cfg = copy.deepcopy(config)
-        cfg["adaptive"].update(variant)
-        cfg = validate_config(cfg)
-        name = variant_name({**variant, "threshold": threshold})
+        cfg, threshold, name = variant_config(config, text)
         schedule = None
         for control in [None, *(plan.controls if controls else [])]:
             label = name if control is None else f"{name},control={control}"
@@ -156,12 +161,7 @@ def main(argv=None) -> list[dict]:
         rows.append({"path": path, "variant": "FEM–ML", **measure(reference, fem_ml, float(fem_ml.attrs["time_run_s"]))})
         print(rows[-1], flush=True)
         for text in args.variant:
-            variant = parse_variant(text)
-            threshold = float(variant.pop("threshold"))
-            cfg = copy.deepcopy(config)
-            cfg["adaptive"].update(variant)
-            cfg = validate_config(cfg)
-            name = variant_name({**variant, "threshold": threshold})
+            cfg, threshold, name = variant_config(config, text)
             file = run_folder(args) / name / f"{path}.h5"
             if file.is_file():
                 run = read_run(file)
