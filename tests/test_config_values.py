@@ -86,6 +86,17 @@ def test_adaptive_thresholds_take_plus_inf_only(value):
     refused({"adaptive": {"correction_length": value}}, "adaptive.correction_length")
 
 
+def test_a_problems_adaptive_run_takes_its_own_settings_over_the_section_adaptive():
+    """Each problem's adaptive threshold: its own key (biaxial.adaptive.threshold: .inf by default);
+    the key it replaced is refused, saying where its setting lives now."""
+    config = validate_config({"footing": {"adaptive": {"indicator": "distance", "threshold": "inf"}}})
+    assert config["footing"]["adaptive"] == {"indicator": "distance", "threshold": math.inf}
+    assert config["biaxial"]["adaptive"] == {"threshold": math.inf} and config["adaptive"]["indicator"] == "spread"
+    refused({"footing": {"adaptive": {"threshold": math.nan}}}, "footing.adaptive.threshold")
+    refused({"biaxial": {"adaptive": {"indicator": "spreads"}}}, "biaxial.adaptive.indicator")
+    assert "biaxial.adaptive.threshold" in refused({"adaptive": {"problem_threshold": 0.02}}, "adaptive.problem_threshold")
+
+
 def test_a_nan_in_a_set_settings_is_named():
     sets = {"s": {"triaxial": 2, "settings": {"max_strain": math.nan}}}
     refused({"rve_paths": {"sets": sets}}, "rve_paths.sets.s.settings.max_strain")

@@ -149,6 +149,11 @@ def _refuse(lines: list[str]) -> None:
     raise ConfigError("invalid configuration:\n  " + "\n  ".join(lines[:10]))
 
 
+#: (section, key) of a key that moved -> where its setting lives now
+MOVED_KEYS = {("adaptive", "problem_threshold"): "each problem's own: biaxial.adaptive.threshold, "
+                                                  "footing.adaptive.threshold"}
+
+
 def validate_config(config: dict, schema: dict | None = None) -> dict:
     """Fill defaults and validate; returns the completed config (a copy). A key the schema does not
     know is refused, naming it (also ``headline``: the workflow keeps no numbers of a run in its
@@ -165,7 +170,11 @@ def validate_config(config: dict, schema: dict | None = None) -> dict:
         lines = []
         for e in errors:
             key = _key(e.absolute_path)
-            if e.validator == "additionalProperties":
+            moved = [f"'{key}.{name}' is now {MOVED_KEYS[key, name]}" for name in e.instance
+                     if (key, name) in MOVED_KEYS] if e.validator == "additionalProperties" else []
+            if moved:
+                lines.append(f"config key {'; '.join(moved)}")
+            elif e.validator == "additionalProperties":
                 lines.append(f"config key '{key}': {e.message} (unknown key; see {SCHEMA_PATH.name})")
             else:
                 lines.append(f"config key '{key}': {e.message}")

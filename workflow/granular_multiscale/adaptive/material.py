@@ -164,7 +164,7 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
         if not out_of_range_weight >= 0.0:
             raise ValueError(f"config key 'adaptive.out_of_range_weight' must be >= 0, got {out_of_range_weight}")
         if indicator in ("off_training", "distance") and schedule is None and not surrogate.knows_training_states:
-            raise ValueError("config key 'adaptive.indicator' 'off_training' needs networks whose model file keeps "
+            raise ValueError(f"config key 'adaptive.indicator' {indicator!r} needs networks whose model file keeps "
                              "their training states: retrain them (rules train_*)")
         if correction not in CORRECTIONS:
             raise ValueError(f"config key 'adaptive.correction' must be one of {CORRECTIONS}, got {correction!r}")
