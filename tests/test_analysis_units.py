@@ -548,3 +548,24 @@ def test_the_reference_convergence_page_states_the_study_row_solved_like_the_ref
     text = plain_text((tmp_path / "none.html").read_text())
     assert missing is None and "No variant of the tolerance study" in text and "Its own error" not in text
     assert "This report's reference is the analytic elastoplastic model" in text
+
+
+def test_runs_are_compared_on_their_load_schedule_axial_strain_or_settlement():
+    """The triaxial specimen's and the biaxial test's runs share an axial-strain schedule, the
+    footing's a settlement: common_steps compares whichever both runs have, and names it when it
+    differs."""
+    import xarray as xr
+
+    from granular_multiscale.analysis.metrics import common_steps
+
+    def run(**schedule):
+        return xr.Dataset({name: ("step", np.asarray(values, dtype=float)) for name, values in schedule.items()})
+
+    footing = run(load_displacement=[0.0, 1e-3, 2e-3])
+    assert common_steps(footing, run(load_displacement=[0.0, 1e-3, 2e-3])).sizes["step"] == 3
+    with pytest.raises(ValueError, match="load displacement schedule differs"):
+        common_steps(footing, run(load_displacement=[0.0, 1e-3, 3e-3]), label="other")
+    with pytest.raises(ValueError, match="axial strain schedule differs"):
+        common_steps(run(axial_strain=[0, 0.01]), run(axial_strain=[0, 0.02]))
+    with pytest.raises(ValueError, match="no load schedule"):
+        common_steps(footing, run(axial_strain=[0.0, 0.01, 0.02]))

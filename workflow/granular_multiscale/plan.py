@@ -505,6 +505,7 @@ class Plan:
             targets += [L.figure(f"{p}/fields_{c}.png") for c in self.problem_cases[p]]
             targets += [L.vtk(p, c) for c in self.problem_cases[p]]
             targets += [L.table(f"{p}/surrogate_{c}.csv") for c in self.problem_cases[p]]
+            targets += [L.figure(f"{p}/calibration_{c}.png") for c in self.problem_cases[p]]
         if "biaxial" in self.problems:
             targets.append(L.table("biaxial_bands.csv"))
         if "footing" in self.problems:

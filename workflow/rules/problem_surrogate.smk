@@ -15,6 +15,9 @@
 #                             {problem}/surrogate_response_{case}.png, {problem}/error_map_{case}.png:
 #                             every run against the reference (force, volumetric strain, band, stress
 #                             error inside and outside the band or under the footing, DEM share, time)
+#   problem_calibration       {problem}/calibration_{case}.png, tables/{problem}/calibration_{case}.{csv,html}:
+#                             FEM–ML's ensemble spread against its error per spread decile (as
+#                             figure_calibration on the validation path)
 #   table_visited_states      tables/visited_states.{csv,html}: the range of states (p, q, Lode angle,
 #                             principal-axis rotation, strains) of the training sources and of each
 #                             problem's reference run, and the share of its states off the networks'
@@ -116,6 +119,28 @@ rule problem_surrogate_products:
         settings=config["analysis"],
     script:
         "../../scripts/problem_products.py"
+
+
+use rule figure_calibration as problem_calibration with:
+    input:
+        reference=lambda wc: PLAN.problem_run(wc.problem, wc.case),
+        surrogate=L.problem_run("{problem}", "fem_ml", "{case}"),
+    output:
+        figure=report(L.figure("{problem}/calibration_{case}.png"), caption="../report/calibration.rst",
+                      category=CAT_PROBLEMS_SURROGATE, subcategory="{problem}"),
+        csv=report(L.table("{problem}/calibration_{case}.csv"), caption="../report/calibration_csv.rst",
+                   category=CAT_PROBLEMS_SURROGATE, subcategory="{problem}"),
+        html=report(L.table("{problem}/calibration_{case}.html"), caption="../report/calibration_table.rst",
+                    category=CAT_PROBLEMS_SURROGATE, subcategory="{problem}"),
+    log:
+        L.log("analysis/{problem}/calibration_{case}"),
+    benchmark:
+        L.benchmark("analysis/{problem}/calibration_{case}")
+    params:
+        settings=config["analysis"],
+        path_label=lambda wc: f"{PROBLEM_LABEL[wc.problem]}, path {wc.case}",
+        reference_label=PLAN.reference_label,
+        surrogate_label=PLAN.surrogate_label,
 
 
 rule table_visited_states:

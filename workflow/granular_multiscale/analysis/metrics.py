@@ -49,8 +49,12 @@ def common_steps(reference: xr.Dataset, run: xr.Dataset, label: str = "run") -> 
     if n_run != n_ref and not (is_partial(run) and n_run < n_ref):
         raise ValueError(f"{label}: {n_run} steps, the reference has {n_ref}")
     reference = reference.isel(step=slice(0, n_run))
-    if not np.allclose(reference["axial_strain"].values, run["axial_strain"].values, rtol=1e-9, atol=1e-12):
-        raise ValueError(f"{label}: axial strain schedule differs from the reference (another load path?)")
+    # the load schedule: the triaxial specimen's and the biaxial test's axial strain, the footing's settlement
+    schedule = next((name for name in ("axial_strain", "load_displacement") if name in reference and name in run), None)
+    if schedule is None:
+        raise ValueError(f"{label}: no load schedule (axial_strain or load_displacement) shared with the reference")
+    if not np.allclose(reference[schedule].values, run[schedule].values, rtol=1e-9, atol=1e-12):
+        raise ValueError(f"{label}: {schedule.replace('_', ' ')} schedule differs from the reference (another load path?)")
     if "gp" in reference.dims and reference.sizes["gp"] != run.sizes.get("gp", -1):
         raise ValueError(f"{label}: {run.sizes.get('gp')} Gauss points, the reference has {reference.sizes['gp']}")
     if "gp_position" in reference and "gp_position" in run:
