@@ -239,9 +239,10 @@ def test_threshold_infinity_is_fem_ml(setup, fem_ml_run, tmp_path):
 
 @pytest.mark.needs_yade
 def test_the_off_training_indicator_is_the_distance_to_the_training_states(setup, fem_ml_run, tmp_path):
-    """Indicators off_training and distance at threshold ∞: the run is FEM–ML, and at each converged
-    step it records d / r − 1 (0 inside), or d / r, of FEM–ML's inputs against the training states
-    the model file keeps; networks whose file keeps none are refused naming the key."""
+    """Indicators off_training, distance and shear_strain at threshold ∞: the run is FEM–ML, and at
+    each converged step it records d / r − 1 (0 inside), or d / r, of FEM–ML's inputs against the
+    training states the model file keeps, or the equivalent shear strain √(2/3)·‖dev ε‖ of its
+    strains; networks whose file keeps no training states are refused naming the key."""
     from granular_multiscale.analysis.problem_surrogate import run_features
     from granular_multiscale.novelty import TrainingStates
     from granular_multiscale.surrogate.models import SurrogateModel
@@ -260,6 +261,13 @@ def test_the_off_training_indicator_is_the_distance_to_the_training_states(setup
     run = run_adaptive(distance, "p", np.inf, packings, sigma, None, "autodiff", n_workers=2)
     np.testing.assert_allclose(run.indicator.values, ratio, rtol=1e-9, atol=1e-12)
     assert len(np.unique(np.round(ratio[ratio < 1], 9))) > 1  # it ranks the states inside the data too
+    shear = {**config, "adaptive": {**config["adaptive"], "indicator": "shear_strain"}}
+    run = run_adaptive(shear, "p", np.inf, packings, sigma, None, "autodiff", n_workers=2)
+    strain = fem_ml_run.strain.transpose("step", "gp", "comp").values
+    deviator = strain - strain[..., :3].mean(axis=-1, keepdims=True) * np.array([1, 1, 1, 0, 0, 0])
+    expected_shear = np.sqrt(2 / 3 * (deviator[..., :3] ** 2 + 2 * deviator[..., 3:] ** 2).sum(axis=-1))
+    np.testing.assert_allclose(run.indicator.values, expected_shear, rtol=1e-9, atol=1e-15)
+    assert expected_shear[-1].min() > 1e-3  # the strains of the path, not zeros
     model.training_states = None
     model.save(tmp_path / "without.pt")
     for cfg in (config, distance):

@@ -29,6 +29,9 @@ Indicator (``adaptive.indicator``), per point, from the surrogate's answer at th
   points inside the data, where ``off_training`` is 0 for all of them. Where the networks' error
   grows with the distance to what they learnt (the footing: rank correlation 0.85 after the peak),
   a threshold below 1 promotes the points in the sparsest part of the data first.
+* ``shear_strain``: the point's equivalent shear strain ε_s = √(2/3)·‖dev ε‖ at the trial strain,
+  no statement of the networks at all: DEM where the field localises, the points of a shear band
+  first (its threshold is a strain).
 
 A surrogate point is promoted when its indicator is **≥ threshold**: threshold 0 is DEM at every
 point from the first evaluation on (FEM–DEM), threshold ∞ never (FEM–ML).
@@ -105,10 +108,11 @@ from typing import Any
 import numpy as np
 
 from ..dem.subset import DemSubsetMaterialPointSet
+from ..history import strain_norms
 from ..materials.base import MaterialPointSet
 from ..surrogate.material import SurrogateMaterial, relative_spread
 
-INDICATORS = ("spread", "out_of_range", "max", "off_training", "distance")
+INDICATORS = ("spread", "out_of_range", "max", "off_training", "distance", "shear_strain")
 #: the indicator of a control run: the promotions of another run, copied
 SCHEDULE = "schedule"
 CORRECTIONS = ("none", "kernel", "local_kernel")
@@ -211,8 +215,10 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
         commit = np.arange(1, self.commits + 1)[:, None]
         return ((self.promoted_at[None, :] >= 0) & (self.promoted_at[None, :] < commit)).astype(np.int8)
 
-    def indicator_values(self, stress: np.ndarray) -> np.ndarray:
-        """[n] the indicator of the surrogate's last evaluation, whose stress was `stress`."""
+    def indicator_values(self, stress: np.ndarray, strain: np.ndarray) -> np.ndarray:
+        """[n] the indicator of the surrogate's last evaluation, at `strain`, whose stress was `stress`."""
+        if self.indicator == "shear_strain":
+            return np.sqrt(2.0 / 3.0) * strain_norms(strain)[:, 1]
         if self.indicator == "off_training":
             return self.surrogate.trial_novelty()
         if self.indicator == "distance":
@@ -230,7 +236,7 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
         strain = self._check_strain(strain)
         stress, tangent = self.surrogate.evaluate(strain, need_tangent=need_tangent)
         if self.schedule is None:
-            value = self.indicator_values(stress)
+            value = self.indicator_values(stress, strain)
             new = np.flatnonzero(~self.dem_mode & (value >= self.threshold))
         else:  # a control: 1 where the copied run had the point in DEM by this commit
             value = ((self.schedule >= 0) & (self.schedule <= self.commits)).astype(float)
