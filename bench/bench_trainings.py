@@ -110,8 +110,8 @@ def runs_of(plan: Plan, models: dict | None, folder: Path, workers: int, logger)
         biaxial_config, threshold = problem_adaptive_config(config, "biaxial")
         made("adaptive biaxial", "biaxial", folder / "biaxial" / plan.problem_adaptive_method / f"{case}.h5",
              lambda file: run_adaptive(
-                 biaxial_config, case, threshold, plan.packings, specimen["sigma"], specimen["tangent"], tangent, output=file, checkpoint=file.with_suffix(".ckpt"), n_workers=workers, logger=logger,
-                 allow_partial=True, problem="biaxial", weak_packing=plan.weak_packing_input("biaxial")[0]))
+                 biaxial_config, case, threshold, plan.packings, specimen["sigma"], specimen["tangent"], tangent,
+                 output=file, checkpoint=file.with_suffix(".ckpt"), n_workers=workers, logger=logger, allow_partial=True, problem="biaxial", weak_packing=plan.weak_packing_input("biaxial")[0]))
     return runs
 
 

@@ -60,6 +60,11 @@ def strain_norms(strain: np.ndarray) -> np.ndarray:
                              np.sum(_FROBENIUS_WEIGHT * deviator(strain) ** 2, axis=-1)], axis=-1))
 
 
+def equivalent_shear_strain(strain: np.ndarray) -> np.ndarray:
+    """[..., 6] strain -> [...] ε_s = √(2/3)·‖dev ε‖_F."""
+    return np.sqrt(2.0 / 3.0) * strain_norms(strain)[..., 1]
+
+
 def running_peak(peak_converged: np.ndarray, strain: np.ndarray) -> np.ndarray:
     """(ψ1, ψ2) with `strain` as the current step: the larger of the converged maxima and its norms."""
     return np.maximum(peak_converged, strain_norms(strain))

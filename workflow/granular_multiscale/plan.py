@@ -437,9 +437,8 @@ class Plan:
     def problem_adaptive_runs(self, problem: str, case: str) -> dict[str, str]:
         """{label: run file} of a problem's adaptive run and its controls."""
         L = self.layout
-        cfg, threshold = problem_adaptive_config(self.config, problem)
-        indicator = cfg["adaptive"]["indicator"] if "indicator" in self.config[problem]["adaptive"] else None
-        runs = {adaptive_label(threshold, indicator): L.problem_run(problem, self.problem_adaptive_method, case)}
+        label = adaptive_label(self.problem_threshold(problem), self.config[problem]["adaptive"].get("indicator"))
+        runs = {label: L.problem_run(problem, self.problem_adaptive_method, case)}
         for control in self.controls:
             runs[f"control: {CONTROL_LABEL[control]} + the same DEM points"] = L.problem_run(
                 problem, self.control_method(control), case)

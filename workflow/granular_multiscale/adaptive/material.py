@@ -108,7 +108,7 @@ from typing import Any
 import numpy as np
 
 from ..dem.subset import DemSubsetMaterialPointSet
-from ..history import strain_norms
+from ..history import equivalent_shear_strain
 from ..materials.base import MaterialPointSet
 from ..surrogate.material import SurrogateMaterial, relative_spread
 
@@ -218,7 +218,7 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
     def indicator_values(self, stress: np.ndarray, strain: np.ndarray) -> np.ndarray:
         """[n] the indicator of the surrogate's last evaluation, at `strain`, whose stress was `stress`."""
         if self.indicator == "shear_strain":
-            return np.sqrt(2.0 / 3.0) * strain_norms(strain)[:, 1]
+            return equivalent_shear_strain(strain)
         if self.indicator == "off_training":
             return self.surrogate.trial_novelty()
         if self.indicator == "distance":

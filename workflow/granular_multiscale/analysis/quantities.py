@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..history import equivalent_shear_strain  # noqa: F401 (the analysis's quantities)
 from ..tensors import voigt_to_tensor
 
 _SHEAR_WEIGHT = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0])
@@ -56,12 +57,6 @@ def volumetric_strain(strain: np.ndarray) -> np.ndarray:
 def local_axial_strain(strain: np.ndarray) -> np.ndarray:
     """−ε33, compression positive; [..., 6] -> [...]."""
     return -np.asarray(strain, dtype=float)[..., 2]
-
-
-def equivalent_shear_strain(strain: np.ndarray) -> np.ndarray:
-    """ε_s = sqrt(2/3 e:e) of the tensorial strain; [..., 6] -> [...]."""
-    e = _deviator(strain)
-    return np.sqrt(2.0 / 3.0 * np.sum(_SHEAR_WEIGHT * e**2, axis=-1))
 
 
 def lode_angle(stress: np.ndarray) -> np.ndarray:
