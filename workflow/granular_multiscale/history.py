@@ -61,8 +61,8 @@ def strain_norms(strain: np.ndarray) -> np.ndarray:
 
 
 def equivalent_shear_strain(strain: np.ndarray) -> np.ndarray:
-    """[..., 6] strain -> [...] ε_s = √(2/3)·‖dev ε‖_F."""
-    return np.sqrt(2.0 / 3.0) * strain_norms(strain)[..., 1]
+    """[..., 6] strain -> [...] ε_s = √(2/3 · dev ε : dev ε) (the analysis's too, to the last bit)."""
+    return np.sqrt(2.0 / 3.0 * np.sum(_FROBENIUS_WEIGHT * deviator(strain) ** 2, axis=-1))
 
 
 def running_peak(peak_converged: np.ndarray, strain: np.ndarray) -> np.ndarray:
