@@ -46,8 +46,9 @@ def rule_wall_times(output_dir: Path) -> dict[str, float]:
 
 #: the run's tables a record keeps (the per-Gauss-point ones stay in the output folder)
 TABLES = ("speedup.csv", "accuracy.csv", "surrogate_cost.csv", "validation_by_phase.csv", "calibration.csv",
-          "biaxial_bands.csv", "footing.csv", "rve_angles.csv", "visited_states.csv",
-          "biaxial/surrogate_biaxial.csv", "footing/surrogate_footing.csv")
+          "spread_scale.csv", "biaxial_bands.csv", "footing.csv", "rve_angles.csv", "visited_states.csv",
+          "biaxial/surrogate_biaxial.csv", "footing/surrogate_footing.csv", "biaxial/calibration_biaxial.csv",
+          "footing/calibration_footing.csv")
 
 
 def tables(plan: Plan) -> dict[str, list[dict]]:

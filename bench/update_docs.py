@@ -250,6 +250,32 @@ def render_problems(record: dict) -> str:
     return "\n".join(lines)
 
 
+def render_calibration(record: dict) -> str:
+    """The ensemble spread's calibration on the validation path and the problems: median error / spread,
+    as measured and scaled by the held-out trajectories' scale (tables calibration*, spread_scale)."""
+    tables = record["figures"]["tables"]
+    scales = {row["networks"]: row for row in tables["spread_scale.csv"]}
+    lines = [f"{run_label(record)}. The spread's scale, the median error / spread on the held-out trajectories: "
+             + "; ".join(f"{name.replace('_', ' ')} networks {row['scale']:.2f} ({row['heldout_trajectories']} "
+                         f"trajectories, {row['pairs']} samples)" for name, row in scales.items()) + ".", "",
+             "| run | (step, point) pairs | ρ(spread, error) | error / spread: all, spread deciles | "
+             "error / (scale × spread): all, spread deciles |", "| --- | --- | --- | --- | --- |"]
+    for name, label in (("calibration.csv", "triaxial, validation path"),
+                        ("biaxial/calibration_biaxial.csv", "biaxial test"),
+                        ("footing/calibration_footing.csv", "strip footing")):
+        if name not in tables:
+            continue
+        rows = tables[name]
+        deciles, everything = rows[:-1], rows[-1]
+
+        def span(column):
+            values = [r[column] for r in deciles]
+            return f"{everything[column]:.2f}, {min(values):.2f}–{max(values):.2f}"
+        lines.append(f"| {label} | {everything['count']} | {everything['spearman_spread_error']:.2f} | "
+                     f"{span('median_error_over_spread')} | {span('median_error_over_scaled_spread')} |")
+    return "\n".join(lines) + "\n"
+
+
 def render_reference_scatter(record: dict) -> str:
     """Other FEM–DEM runs of a problem against the pipeline's (bench_reference_scatter)."""
     f = record["figures"]
@@ -404,7 +430,8 @@ RENDERERS = {"headline": render_headline, "rules": render_rules, "fem_ml": rende
              "problem_references": render_problem_references, "rve_paths": render_rve_paths,
              "ensemble_resampling": render_ensemble_resampling, "strain_rate": render_strain_rate,
              "fem_ml_vs_dem": render_fem_ml_vs_dem, "trainings": render_trainings,
-             "reference_scatter": render_reference_scatter, "adaptive_variants": render_adaptive_variants}
+             "reference_scatter": render_reference_scatter, "adaptive_variants": render_adaptive_variants,
+             "calibration": render_calibration}
 
 
 def rewrite(text: str, document: str) -> str:

@@ -67,6 +67,10 @@ def test_the_default_scale_trains_on_path1_and_rve_paths_and_validates_on_path2(
     assert plan.weak_zone_models("biaxial") == {"weak_sigma": "out/weak_zone/models/nn_sigma.pt",
                                                 "weak_tangent": "out/weak_zone/models/nn_tangent.pt"}
     assert plan.weak_zone_models("footing") == {}
+    # the spread's scale: each network pair FEM–ML uses, on its own held-out trajectories
+    assert plan.spread_scale_inputs() == {
+        "specimen_sigma": "out/models/nn_sigma.pt", "specimen_heldout": "out/dataset/heldout.h5",
+        "weak_zone_sigma": "out/weak_zone/models/nn_sigma.pt", "weak_zone_heldout": "out/weak_zone/dataset/heldout.h5"}
     assert plan.validation_cases() == {"path2": "validation path", "path1": "training path"}
 
 
@@ -213,3 +217,4 @@ def test_the_element_tests_configs_validate_as_their_rule_validates_them(scale, 
     config = validate_config({**plan.config, **plan.element_test_overrides(test)})
     if test == "biaxial":
         assert Plan(config).weak_zone_models("biaxial") == {}
+        assert list(Plan(config).spread_scale_inputs()) == ["specimen_sigma", "specimen_heldout"]

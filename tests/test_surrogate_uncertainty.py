@@ -322,3 +322,85 @@ def test_calibration_names_a_run_without_spread(runs):
     old = runs[2].drop_vars(["stress_spread", "stress_spread_relative"])
     with pytest.raises(calibration.CalibrationError, match="old.h5 has no 'stress_spread'.*rule fem_ml"):
         calibration.calibration_points(old, runs["reference"], label="old.h5")
+
+
+# ------------------------------------------------------------------ the spread's scale on held-out data
+
+
+@pytest.fixture(scope="module")
+def heldout():
+    """The held-out side of the dataset the models fixture trained on (the same run, split and seed)."""
+    path = load_paths_from_config(CONFIG)["path1"]
+    run = material_point_run(Elastoplastic.from_config(12, CONFIG), triaxial_strain_paths(path, 12, seed=2), path)
+    return build_dataset(run, 0.75, seed=0)[1]
+
+
+def test_heldout_spread_scale_is_what_the_material_reports_along_the_heldout_histories(models, heldout):
+    """The scale recomputed independently: the surrogate material (as FEM–ML runs it) driven along each
+    held-out trajectory's strain history, committing every step, gives the stress and the spread of
+    each (step ≥ 1, trajectory); the median of their error over spread is the scale."""
+    model = SurrogateModel.load(models[2])
+    scale = calibration.heldout_spread_scale(model, heldout)
+    strain, stress = heldout.strain.transpose("step", "gp", "comp").values, heldout.stress.transpose("step", "gp", "comp").values
+    material = SurrogateMaterial(heldout.sizes["gp"], model, tangent="autodiff")
+    errors = []
+    for step in range(1, heldout.sizes["step"]):
+        sigma, _ = material.evaluate(strain[step], need_tangent=False)
+        material.commit()
+        errors.append(tensor_norm(sigma - stress[step]))
+    spread = tensor_norm(material.stress_spread)
+    ratio = np.asarray(errors) / spread
+    assert heldout.valid.values.all() and scale["pairs"] == ratio.size == (heldout.sizes["step"] - 1) * heldout.sizes["gp"]
+    assert scale["trajectories"] == heldout.sizes["gp"] == 3  # a quarter of the 12 trajectories
+    assert scale["scale"] == pytest.approx(np.median(ratio), rel=1e-9)
+    assert scale["p10_error_over_spread"] == pytest.approx(np.percentile(ratio, 10), rel=1e-9)
+    assert scale["scale"] > 1.0  # members trained on the same data agree more than they are right
+    one = calibration.heldout_spread_scale(SurrogateModel.load(models[1]), heldout)
+    assert one["pairs"] == 0 and np.isnan(one["scale"])  # one network: no spread to scale
+
+
+def test_calibration_against_the_scaled_spread_of_a_constructed_pair(runs, tmp_path):
+    """Error = 2 × spread at every point, scale 2 at half of the points and 4 at the others: error /
+    (scale × spread) is 1 and 0.5 there, the figure draws error = 3 × spread (the points' median
+    scale), and a scale table without the specimen's row, or scales for other points, are refused."""
+    run = runs[2]
+    reference = run.copy()
+    reference["stress"] = run.stress - 2.0 * run.stress_spread
+    scales = np.where(np.arange(run.sizes["gp"]) < 8, 2.0, 4.0)
+    points = calibration.calibration_points(run, reference, spread_scale=scales)
+    ratio = points.error_kpa / points.scaled_spread_kpa
+    np.testing.assert_allclose(ratio[points.gp < 8], 1.0, rtol=1e-8)
+    np.testing.assert_allclose(ratio[points.gp >= 8], 0.5, rtol=1e-8)
+    assert calibration.calibration_table(points).iloc[-1].median_error_over_scaled_spread == pytest.approx(0.75)
+    files = {name: write_run(ds, tmp_path / f"{name}.h5", CONFIG) for name, ds in (("ml", run), ("ref", reference))}
+    out = {k: tmp_path / f"calibration.{k}" for k in ("png", "csv", "html")}
+    table, drawn = calibration.make_calibration(files["ml"], files["ref"], out["png"], out["csv"], out["html"], {},
+                                                path_label="Short", reference_label="constructed",
+                                                surrogate_label="FEM–ML", spread_scales={"specimen": 2.0})
+    np.testing.assert_allclose(table.median_error_over_scaled_spread, 1.0, rtol=1e-8)
+    x, y = drawn["error_vs_spread"]["error = 2.00 × spread (the held-out trajectories' scale)"]
+    np.testing.assert_allclose(y, 2.0 * x)
+    assert "median error / (scale × spread)" in out["html"].read_text()
+    with pytest.raises(calibration.CalibrationError, match="short.h5: \\(3,\\) spread scales for its 16 Gauss points"):
+        calibration.calibration_points(run, reference, label="short.h5", spread_scale=np.ones(3))
+    pd.DataFrame({"networks": ["weak_zone"], "scale": [3.0]}).to_csv(tmp_path / "scales.csv", index=False)
+    with pytest.raises(calibration.CalibrationError, match="scales.csv: not a spread-scale table.*'specimen'"):
+        calibration.read_spread_scales(tmp_path / "scales.csv")
+
+
+def test_the_weak_zone_points_get_the_weak_zone_networks_scale(runs):
+    """A run that names the weak zone's networks: the points within the zone's radius (x–z plane) take
+    the row 'weak_zone', the others the specimen's; without that row the run is refused by name."""
+    run = runs[2].copy()
+    xz = run.gp_position.transpose("gp", "xyz").values[:, [0, 2]]
+    centre = xz[5]
+    radius = 0.5 * np.sort(np.linalg.norm(xz - centre, axis=1))[1]  # holds point 5 (and its twins) only
+    run.attrs.update({"surrogate_weak_zone_sigma_model": "weak.pt", "weak_zone_center_m": centre.tolist(),
+                      "weak_zone_radius_m": radius})
+    scales = calibration.point_spread_scales(run, {"specimen": 2.0, "weak_zone": 5.0})
+    inside = np.linalg.norm(xz - centre, axis=1) <= radius
+    assert inside[5] and inside.sum() < run.sizes["gp"]
+    np.testing.assert_array_equal(scales, np.where(inside, 5.0, 2.0))
+    with pytest.raises(calibration.CalibrationError, match="run.h5 has the weak zone's networks.*'weak_zone'"):
+        calibration.point_spread_scales(run, {"specimen": 2.0}, label="run.h5")
+    np.testing.assert_array_equal(calibration.point_spread_scales(runs[2], {"specimen": 2.0}), 2.0)

@@ -264,6 +264,17 @@ class Plan:
             return {}
         return {f"weak_{n}": self.layout.model(n, WEAK_ZONE_ROUND) for n in ("sigma", "tangent")}
 
+    def spread_scale_inputs(self) -> dict[str, str]:
+        """{<networks>_sigma, <networks>_heldout}: the NNσ and the held-out dataset of each network pair
+        FEM–ML uses (the specimen's, and the weak zone's where the biaxial test has them), on which rule
+        table_spread_scale measures the ensemble spread's scale."""
+        L = self.layout
+        rounds = {"specimen": ""}
+        if "biaxial" in self.problems and self.weak_zone_models("biaxial"):
+            rounds["weak_zone"] = WEAK_ZONE_ROUND
+        return {f"{name}_{kind}": L.model("sigma", r) if kind == "sigma" else L.dataset("heldout", r)
+                for name, r in rounds.items() for kind in ("sigma", "heldout")}
+
     def training_settings(self) -> dict:
         return {k: self.config["surrogate"][k] for k in TRAINING_KEYS}
 
@@ -496,7 +507,8 @@ class Plan:
                     L.table("validation_by_phase.csv")]
         if self.adaptive_in_report:
             targets.append(L.figure("adaptive_mode_map.png"))
-        targets += [L.figure("calibration.png"), L.table("calibration.csv"), L.table("calibration.html")]
+        targets += [L.figure("calibration.png"), L.table("calibration.csv"), L.table("calibration.html"),
+                    L.table("spread_scale.csv")]
         if self.problems:
             targets += [L.table("rve_angles.csv"), L.table("visited_states.csv")]
         for p in self.problems:

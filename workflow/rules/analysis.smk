@@ -303,10 +303,27 @@ rule validation_tables:
 
 
 # the ensemble spread FEM–ML reports (surrogate.ensemble_size) against its realised error
+rule table_spread_scale:
+    input:
+        unpack(lambda wc: PLAN.spread_scale_inputs()),
+    output:
+        csv=report(L.table("spread_scale.csv"), caption="../report/spread_scale.rst",
+                   category=CAT_UNCERTAINTY, subcategory="Calibration of the ensemble spread"),
+        html=report(L.table("spread_scale.html"), caption="../report/spread_scale.rst",
+                    category=CAT_UNCERTAINTY, subcategory="Calibration of the ensemble spread"),
+    log:
+        L.log("analysis/table_spread_scale"),
+    benchmark:
+        L.benchmark("analysis/table_spread_scale")
+    script:
+        "../../scripts/analysis_spread_scale.py"
+
+
 rule figure_calibration:
     input:
         reference=PLAN.reference_run(VALIDATION),
         surrogate=L.fem_ml(VALIDATION),
+        spread_scale=L.table("spread_scale.csv"),
     output:
         figure=report(L.figure("calibration.png"), caption="../report/calibration.rst",
                       category=CAT_UNCERTAINTY, subcategory="Calibration of the ensemble spread"),

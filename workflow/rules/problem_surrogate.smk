@@ -125,6 +125,7 @@ use rule figure_calibration as problem_calibration with:
     input:
         reference=lambda wc: PLAN.problem_run(wc.problem, wc.case),
         surrogate=L.problem_run("{problem}", "fem_ml", "{case}"),
+        spread_scale=L.table("spread_scale.csv"),
     output:
         figure=report(L.figure("{problem}/calibration_{case}.png"), caption="../report/calibration.rst",
                       category=CAT_PROBLEMS_SURROGATE, subcategory="{problem}"),

@@ -15,10 +15,21 @@ A spread is calibrated when the error is about as large (the y = x line of the f
 ranks with it (Spearman ρ near 1). With an ensemble of one network the spread is 0 and carries
 no information: table, figure and title say so and show the error alone.
 
+The members agree more than they are right: trained on the same data, they share much of their
+error. :func:`heldout_spread_scale` measures by how much, on whole trajectories the training never
+saw (the dataset's held-out side, the networks fed their strain histories, no FEM): the median
+error / spread there is the spread's *scale*, one number per network pair (rule
+``table_spread_scale``). The calibration of a run then also gives error / (scale × spread): about 1
+where the run's points are as far from the training as the held-out trajectories, above 1 where
+they are farther (the problems), so the scaled spread is fitted on data independent of the run it
+is judged on.
+
     points = calibration_points(run, reference)      # one row per (step ≥ 1, Gauss point)
     calibration_table(points)                        # per spread decile, then the row "all"
     steps = step_summary(points)                     # per step: median and 90th percentile
     make_calibration(run_file, reference_file, png, csv, html, settings, ...)   # the rule's products
+    heldout_spread_scale(model, heldout)             # the spread's scale on held-out trajectories
+    point_spread_scales(run, scales)                 # [n_gp] each point's scale (the weak zone's own)
 """
 
 from __future__ import annotations
@@ -30,7 +41,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from .. import data
+from .. import data, integrity
 from . import metrics, tables
 from .products import legend_label
 
@@ -47,8 +58,11 @@ def ensemble_size(run: xr.Dataset) -> int:
     return int(run.attrs.get("ensemble_size", run["stress_spread"].attrs.get("ensemble_size", 1)))
 
 
-def calibration_points(run: xr.Dataset, reference: xr.Dataset, label: str = "FEM–ML run") -> pd.DataFrame:
-    """One row per (load step ≥ 1, Gauss point): step, gp, phase, spread_kpa, relative_spread, error_kpa."""
+def calibration_points(run: xr.Dataset, reference: xr.Dataset, label: str = "FEM–ML run",
+                       spread_scale: np.ndarray | None = None) -> pd.DataFrame:
+    """One row per (load step ≥ 1, Gauss point): step, gp, phase, spread_kpa, relative_spread, error_kpa;
+    with ``spread_scale`` ([n_gp], :func:`point_spread_scales`) also scaled_spread_kpa, the spread times
+    its point's scale."""
     for name in ("stress_spread", "stress_spread_relative"):
         if name not in run:
             raise CalibrationError(f"{label} has no '{name}' (written before FEM–ML recorded the ensemble spread: "
@@ -67,6 +81,11 @@ def calibration_points(run: xr.Dataset, reference: xr.Dataset, label: str = "FEM
         "relative_spread": relative.ravel(),
         "error_kpa": 1e-3 * metrics.stress_norm(val - ref).ravel(),
     })
+    if spread_scale is not None:
+        scale = np.asarray(spread_scale, dtype=float)
+        if scale.shape != (n_gp,):
+            raise CalibrationError(f"{label}: {scale.shape} spread scales for its {n_gp} Gauss points")
+        points["scaled_spread_kpa"] = points.spread_kpa * np.tile(scale, n_steps)
     bad = points[~np.isfinite(points[["spread_kpa", "relative_spread", "error_kpa"]]).all(axis=1)]
     if len(bad):
         raise CalibrationError(f"{label}: non-finite spread or error at (step, Gauss point) "
@@ -94,7 +113,7 @@ def spearman(x: np.ndarray, y: np.ndarray) -> float:
 def _row(label, pick: pd.DataFrame) -> dict:
     spread, error = pick.spread_kpa.to_numpy(), pick.error_kpa.to_numpy()
     positive = spread > 0
-    return {
+    row = {
         "decile": label,
         "count": int(len(pick)),
         "spread_min_kpa": float(spread.min()),
@@ -105,6 +124,11 @@ def _row(label, pick: pd.DataFrame) -> dict:
         "p90_error_kpa": float(np.percentile(error, 90)),
         "median_error_over_spread": float(np.median(error[positive] / spread[positive])) if positive.any() else np.nan,
     }
+    if "scaled_spread_kpa" in pick:
+        scaled = pick.scaled_spread_kpa.to_numpy()
+        row["median_error_over_scaled_spread"] = (float(np.median(error[positive] / scaled[positive]))
+                                                  if positive.any() else np.nan)
+    return row
 
 
 def calibration_table(points: pd.DataFrame, n_bins: int = N_BINS) -> pd.DataFrame:
@@ -135,6 +159,44 @@ def step_summary(points: pd.DataFrame) -> pd.DataFrame:
         "median_error_kpa": grouped.error_kpa.median(),
         "p90_error_kpa": grouped.error_kpa.quantile(0.9),
     }).reset_index()
+
+
+def heldout_spread_scale(model, heldout: xr.Dataset) -> dict:
+    """The spread's scale on the held-out trajectories of the networks' dataset: the median over their
+    (step ≥ 1) samples of ‖σ_NN − σ_ref‖ / ‖spread‖, each member anchored as FEM–ML anchors it, fed
+    the trajectory's recorded strain and history (no FEM). Returns scale, pairs (samples with a
+    positive spread), trajectories and the 10th and 90th percentiles of the ratio; the scale is NaN
+    for one network (no spread)."""
+    from ..surrogate.dataset import features, sample_mask, sample_trajectories, targets
+
+    steps = np.broadcast_to(heldout["step"].values[:, None], (heldout.sizes["step"], heldout.sizes["gp"]))
+    later = steps.reshape(-1)[sample_mask(heldout)] >= 1  # step 0: the anchored fresh state, exact
+    x, y = features(heldout, model.history)[later], targets(heldout, "sigma")[later]
+    members = model.predict_members(x) + model.initial_offset(per_member=True)[:, None, :]
+    error = metrics.stress_norm(members.mean(axis=0) - y)
+    spread = metrics.stress_norm(members.std(axis=0))
+    positive = spread > 0
+    ratio = error[positive] / spread[positive]
+    nan = float("nan")
+    return {"scale": float(np.median(ratio)) if ratio.size else nan, "pairs": int(positive.sum()),
+            "trajectories": int(np.unique(sample_trajectories(heldout)[later]).size),
+            "p10_error_over_spread": float(np.percentile(ratio, 10)) if ratio.size else nan,
+            "p90_error_over_spread": float(np.percentile(ratio, 90)) if ratio.size else nan}
+
+
+def point_spread_scales(run: xr.Dataset, scales: Mapping[str, float], label: str = "FEM–ML run") -> np.ndarray:
+    """[n_gp] each point's spread scale (``scales``: network round -> scale, the rows of rule
+    ``table_spread_scale``): the weak zone's networks' at the points inside the weak zone of a run
+    that names them (``surrogate_weak_zone_sigma_model``; the zone as the biaxial test draws it, a
+    circle in the x–z plane), the specimen's elsewhere."""
+    out = np.full(run.sizes["gp"], float(scales["specimen"]))
+    if run.attrs.get("surrogate_weak_zone_sigma_model"):
+        if "weak_zone" not in scales:
+            raise CalibrationError(f"{label} has the weak zone's networks, the spread scales have no row 'weak_zone'")
+        xz = run["gp_position"].transpose("gp", "xyz").values[:, [0, 2]]
+        centre = np.asarray(run.attrs["weak_zone_center_m"], dtype=float)
+        out[np.linalg.norm(xz - centre, axis=1) <= float(run.attrs["weak_zone_radius_m"])] = float(scales["weak_zone"])
+    return out
 
 
 def ensemble_note(k: int) -> str:
@@ -184,6 +246,13 @@ def calibration_figure(points: pd.DataFrame, table: pd.DataFrame, steps: pd.Data
         ax_c.hexbin(x, y, xscale="log", yscale="log", gridsize=30, mincnt=1, cmap="Blues", bins="log", linewidths=0.2)
         lo, hi = min(x.min(), y.min()) / 1.5, max(x.max(), y.max()) * 1.5
         ax_c.plot([lo, hi], [lo, hi], color="black", linewidth=1.0, label="error = spread")
+        if "scaled_spread_kpa" in points:
+            scale = float(np.median(points.scaled_spread_kpa[points.spread_kpa > 0] /
+                                    points.spread_kpa[points.spread_kpa > 0]))
+            if np.isfinite(scale):
+                label = f"error = {scale:.2f} × spread (the held-out trajectories' scale)"
+                drawn["error_vs_spread"][label] = (np.array([lo, hi]), scale * np.array([lo, hi]))
+                ax_c.plot(*drawn["error_vs_spread"][label], color="black", linewidth=1.0, linestyle=":", label=label)
         bins = table[table.decile != "all"]
         for column, fmt, alpha, label in (("median_error_kpa", "o-", 1.0, "median error per spread decile"),
                                           ("p90_error_kpa", "v--", 0.7, "90th percentile per decile")):
@@ -194,7 +263,10 @@ def calibration_figure(points: pd.DataFrame, table: pd.DataFrame, steps: pd.Data
         left_out = len(points) - len(plotted)
         note = f"{len(plotted)} (step, point) pairs" + (f"; {left_out} with zero spread or error left out"
                                                         if left_out else "")
-        ax_c.set_title(f"{note}; Spearman ρ = {float(table.iloc[-1].spearman_spread_error):.2f}", fontsize=8)
+        everything = table.iloc[-1]
+        scaled = (f"; error / scaled spread {everything.median_error_over_scaled_spread:.2f}"
+                  if "median_error_over_scaled_spread" in table else "")
+        ax_c.set_title(f"{note}; Spearman ρ = {float(everything.spearman_spread_error):.2f}{scaled}", fontsize=8)
         ax_c.legend(fontsize=7, loc="upper left")
     else:
         ax_c.set_xticks([])
@@ -239,18 +311,23 @@ HEADERS = {
     "median_error_kpa": "median error (kPa)",
     "p90_error_kpa": "90th pct. error (kPa)",
     "median_error_over_spread": "median error / spread",
+    "median_error_over_scaled_spread": "median error / (scale × spread)",
     "spearman_spread_error": "Spearman ρ (spread, error)",
     "spearman_relative_spread_error": "Spearman ρ (relative spread, error)",
 }
 
 
 def make_calibration(run_file, reference_file, out_png, out_csv, out_html, settings: Mapping, *,
-                     path_label: str, reference_label: str, surrogate_label: str) -> tuple[pd.DataFrame, dict]:
+                     path_label: str, reference_label: str, surrogate_label: str,
+                     spread_scales: Mapping[str, float] | None = None) -> tuple[pd.DataFrame, dict]:
     """Figure, CSV and HTML table of the spread's calibration; returns the table and what the
-    figure drew (:func:`calibration_figure`)."""
+    figure drew (:func:`calibration_figure`). With ``spread_scales`` (network round -> scale, rule
+    ``table_spread_scale``) also against the scaled spread (:func:`point_spread_scales`)."""
     run = data.read_run(run_file)
     reference = data.read_run(reference_file)
-    points = calibration_points(run, reference, label=f"{run_file} (against {reference_file})")
+    label = f"{run_file} (against {reference_file})"
+    scales = None if spread_scales is None else point_spread_scales(run, spread_scales, label)
+    points = calibration_points(run, reference, label=label, spread_scale=scales)
     k = ensemble_size(run)
     table = calibration_table(points)
     title = (f"{path_label}: ensemble spread of {legend_label(surrogate_label, run)} vs its error against "
@@ -261,6 +338,52 @@ def make_calibration(run_file, reference_file, out_png, out_csv, out_html, setti
     tables.write_csv(table, out_csv)
     note = (f"{ensemble_note(k)}. Spread: the norm of the standard deviation over the members of each stress "
             "component at the converged strain; error: the norm of the stress difference from the reference; "
-            f"per (load step >= 1, Gauss point), {len(points)} pairs; deciles of equal count by spread.")
+            f"per (load step >= 1, Gauss point), {len(points)} pairs; deciles of equal count by spread."
+            + (" Scale: the median error / spread of the networks on their held-out trajectories (table "
+               "spread_scale), the weak zone's networks' own at its points." if scales is not None else ""))
     tables.write_html_table(table, out_html, title=title, note=note, headers=HEADERS, digits=3)
     return table, drawn
+
+
+SCALE_HEADERS = {
+    "networks": "networks",
+    "model": "NNσ model file",
+    "heldout_trajectories": "held-out trajectories",
+    "pairs": "(step, trajectory) samples",
+    "scale": "scale: median error / spread",
+    "p10_error_over_spread": "10th pct. error / spread",
+    "p90_error_over_spread": "90th pct. error / spread",
+}
+
+
+def make_spread_scale(networks: Mapping[str, tuple[str, str]], out_csv, out_html) -> pd.DataFrame:
+    """Rule table_spread_scale: for each network round (``networks``: name -> (NNσ model file, its
+    held-out dataset)), :func:`heldout_spread_scale` as a CSV and an HTML table; returns the table."""
+    from ..surrogate.dataset import read_dataset
+    from ..surrogate.models import SurrogateModel
+
+    rows = []
+    for name, (model_file, heldout_file) in networks.items():
+        scale = heldout_spread_scale(SurrogateModel.load(model_file), read_dataset(heldout_file))
+        rows.append({"networks": name, "model": str(model_file), "heldout_trajectories": scale.pop("trajectories"),
+                     **scale})
+    table = pd.DataFrame(rows)
+    tables.write_csv(table, out_csv)
+    note = ("Each network pair's NNσ ensemble fed the strain histories of its held-out trajectories (whole "
+            "trajectories the training never saw), per (step >= 1, trajectory): the realised error over the "
+            "members' spread. Its median scales the spread in the calibration tables and figures; NaN for one "
+            "network (no spread).")
+    tables.write_html_table(table, out_html, title="The ensemble spread's scale on held-out trajectories",
+                            note=note, headers=SCALE_HEADERS, digits=3)
+    return table
+
+
+def read_spread_scales(path) -> dict[str, float]:
+    """{network round: scale} from a table of :func:`make_spread_scale`."""
+    integrity.verify(path, "spread-scale table")
+    table = pd.read_csv(path)
+    missing = {"networks", "scale"} - set(table.columns)
+    if missing or "specimen" not in set(table.networks):
+        raise CalibrationError(f"{path}: not a spread-scale table (needs columns networks, scale and the row "
+                               "'specimen'; rule table_spread_scale writes it)")
+    return dict(zip(table.networks, table.scale.astype(float)))
