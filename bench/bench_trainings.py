@@ -9,7 +9,9 @@ peaks, band inclination and onset against the reference's, stress MAE inside and
 (under the footing and elsewhere), DEM share and wall time — the columns of the problems'
 surrogate tables (``analysis/problem_surrogate.py``), and beside the ensemble spread's rank
 correlation with the error after the peak that of the distance to the training states (does
-either say *where* the networks are wrong?).
+either say *where* the networks are wrong?). For the FEM–ML runs also the spread's calibration:
+median error / spread, as measured and scaled by the scale of the run's own networks on their
+held-out trajectories (``analysis/calibration.py``).
 
     .venv/bin/snakemake -j2 all                       # the pipeline: datasets, networks, references
     .venv/bin/python bench/bench_trainings.py --seeds 1
@@ -28,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from granular_multiscale.analysis import calibration
 from granular_multiscale.analysis.problem_surrogate import comparison_table, rank_correlation_after_peak, run_features
 from granular_multiscale.config import problem_adaptive_config
 from granular_multiscale.data import read_run, write_run
@@ -130,17 +133,35 @@ def training_distance(run, zones) -> np.ndarray:
     return distance
 
 
+def scaled_calibration(plan: Plan, run, reference) -> dict:
+    """A FEM–ML run's median error / spread over every (step ≥ 1, point), as measured and with each
+    point's spread scaled by its networks' scale on their held-out trajectories (the run's own model
+    files, the pipeline's held-out datasets: every training shares them)."""
+    files = {"specimen": (run.attrs["surrogate_sigma_model"], plan.layout.dataset("heldout"))}
+    if run.attrs.get("surrogate_weak_zone_sigma_model"):
+        files["weak_zone"] = (run.attrs["surrogate_weak_zone_sigma_model"], plan.layout.dataset("heldout", WEAK_ZONE_ROUND))
+    scales = {name: calibration.heldout_spread_scale(SurrogateModel.load(model), read_dataset(heldout))["scale"]
+              for name, (model, heldout) in files.items()}
+    points = calibration.calibration_points(run, reference, spread_scale=calibration.point_spread_scales(run, scales))
+    everything = calibration.calibration_table(points).iloc[-1]
+    return {"spread scale": scales["specimen"], "median error / spread": everything.median_error_over_spread,
+            "median error / (scale × spread)": everything.median_error_over_scaled_spread}
+
+
 def compare(plan: Plan, problem: str, file: Path) -> dict:
     """The errors of one run against its FEM–DEM reference."""
     run = read_run(file)
+    fem_ml = "point_mode" not in run  # not an adaptive run
     if problem == "triaxial":
         reference = read_run(plan.reference_run(plan.validation_path))
         return {"force: largest error (% of peak)": curve_error_pct(reference, run, "top_force")["all"],
                 "volumetric strain: largest error (% of its peak)":
                     curve_error_pct(reference, run, "volumetric_strain")["all"],
-                "wall time (s)": float(run.attrs["time_run_s"])}
+                "wall time (s)": float(run.attrs["time_run_s"]), **scaled_calibration(plan, run, reference)}
     reference = read_run(plan.problem_run(problem, plan.problem_cases[problem][0]))
     row = comparison_table(reference, {"run": run}).iloc[0].drop("run").to_dict()
+    if fem_ml:
+        row.update(scaled_calibration(plan, run, reference))
     zones = make_problem(plan.config, problem).zones()
     row["distance–error rank correlation (after the peak)"] = rank_correlation_after_peak(
         reference, run, training_distance(run, zones))

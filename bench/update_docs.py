@@ -378,7 +378,8 @@ def render_trainings(record: dict) -> str:
              "reference's peak (up to / after its peak); ρ: Spearman's over the points of each step after the peak, "
              "median:", "",
              "| run | training seed | force | εv | band Δ, onset Δ | σ MAE in / out of the band or under the footing "
-             "(kPa) | ρ(spread, error) / ρ(distance, error) | DEM share |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "(kPa) | ρ(spread, error) / ρ(distance, error) | error / spread, error / (scale × spread) | DEM share |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in sorted(record["figures"]["rows"], key=lambda r: (r["what"], r["training seed"])):
         get = r.get
         force = f"{r['force: largest error (% of peak)']:.2f} %"
@@ -393,9 +394,11 @@ def render_trainings(record: dict) -> str:
                f"{_number(get('distance–error rank correlation (after the peak)'))}"
                if get("distance–error rank correlation (after the peak)") is not None else "–")
         share = get("DEM particle-steps (% of the reference's)")
+        calibrated = (f"{_number(get('median error / spread'))}, {_number(get('median error / (scale × spread)'))}"
+                      if get("median error / (scale × spread)") is not None else "–")
         lines.append(f"| {r['what']} | {r['training seed']} | {force} | "
                      f"{r['volumetric strain: largest error (% of its peak)']:.1f} % | {band} | {mae} | {rho} | "
-                     f"{'–' if share is None else f'{share:.1f} %'} |")
+                     f"{calibrated} | {'–' if share is None else f'{share:.1f} %'} |")
     return "\n".join(lines) + "\n"
 
 
