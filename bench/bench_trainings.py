@@ -41,7 +41,7 @@ from granular_multiscale.novelty import TrainingStates
 from granular_multiscale.plan import WEAK_ZONE_ROUND, Plan
 from granular_multiscale.surrogate.dataset import read_dataset
 from granular_multiscale.surrogate.models import SurrogateModel
-from granular_multiscale.surrogate.training import train
+from granular_multiscale.surrogate.training import heldout_spread_scale, train
 
 from common import bench_parser, curve_error_pct, require_files, run_folder
 
@@ -140,7 +140,7 @@ def scaled_calibration(plan: Plan, run, reference) -> dict:
     files = {"specimen": (run.attrs["surrogate_sigma_model"], plan.layout.dataset("heldout"))}
     if run.attrs.get("surrogate_weak_zone_sigma_model"):
         files["weak_zone"] = (run.attrs["surrogate_weak_zone_sigma_model"], plan.layout.dataset("heldout", WEAK_ZONE_ROUND))
-    scales = {name: calibration.heldout_spread_scale(SurrogateModel.load(model), read_dataset(heldout))["scale"]
+    scales = {name: heldout_spread_scale(SurrogateModel.load(model), read_dataset(heldout))["scale"]
               for name, (model, heldout) in files.items()}
     points = calibration.calibration_points(run, reference, spread_scale=calibration.point_spread_scales(run, scales))
     everything = calibration.calibration_table(points).iloc[-1]

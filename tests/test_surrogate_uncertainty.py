@@ -29,7 +29,7 @@ from granular_multiscale.surrogate.dataset import build_dataset
 from granular_multiscale.surrogate.material import SurrogateMaterial, relative_spread, spread_floor
 from granular_multiscale.surrogate.models import SurrogateModel
 from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
-from granular_multiscale.surrogate.training import train
+from granular_multiscale.surrogate.training import heldout_spread_scale, train
 from granular_multiscale.tensors import voigt_to_tensor
 
 # loading, unloading, reloading on the 1×1×2 mesh of config/tiny.yaml (16 Gauss points), rough platens
@@ -340,7 +340,7 @@ def test_heldout_spread_scale_is_what_the_material_reports_along_the_heldout_his
     held-out trajectory's strain history, committing every step, gives the stress and the spread of
     each (step ≥ 1, trajectory); the median of their error over spread is the scale."""
     model = SurrogateModel.load(models[2])
-    scale = calibration.heldout_spread_scale(model, heldout)
+    scale = heldout_spread_scale(model, heldout)
     strain, stress = heldout.strain.transpose("step", "gp", "comp").values, heldout.stress.transpose("step", "gp", "comp").values
     material = SurrogateMaterial(heldout.sizes["gp"], model, tangent="autodiff")
     errors = []
@@ -355,7 +355,7 @@ def test_heldout_spread_scale_is_what_the_material_reports_along_the_heldout_his
     assert scale["scale"] == pytest.approx(np.median(ratio), rel=1e-9)
     assert scale["p10_error_over_spread"] == pytest.approx(np.percentile(ratio, 10), rel=1e-9)
     assert scale["scale"] > 1.0  # members trained on the same data agree more than they are right
-    one = calibration.heldout_spread_scale(SurrogateModel.load(models[1]), heldout)
+    one = heldout_spread_scale(SurrogateModel.load(models[1]), heldout)
     assert one["pairs"] == 0 and np.isnan(one["scale"])  # one network: no spread to scale
 
 

@@ -16,10 +16,10 @@ ranks with it (Spearman ρ near 1). With an ensemble of one network the spread i
 no information: table, figure and title say so and show the error alone.
 
 The members agree more than they are right: trained on the same data, they share much of their
-error. :func:`heldout_spread_scale` measures by how much, on whole trajectories the training never
-saw (the dataset's held-out side, the networks fed their strain histories, no FEM): the median
-error / spread there is the spread's *scale*, one number per network pair (rule
-``table_spread_scale``). The calibration of a run then also gives error / (scale × spread): about 1
+error. ``surrogate.training.heldout_spread_scale`` measures by how much, on whole trajectories the
+training never saw (the dataset's held-out side, the networks fed their strain histories, no FEM):
+the median error / spread there is the spread's *scale*, one number per network pair (rule
+``table_spread_scale``, :func:`write_spread_scale`). The calibration of a run then also gives error / (scale × spread): about 1
 where the run's points are as far from the training as the held-out trajectories, above 1 where
 they are farther (the problems), so the scaled spread is fitted on data independent of the run it
 is judged on.
@@ -28,8 +28,8 @@ is judged on.
     calibration_table(points)                        # per spread decile, then the row "all"
     steps = step_summary(points)                     # per step: median and 90th percentile
     make_calibration(run_file, reference_file, png, csv, html, settings, ...)   # the rule's products
-    heldout_spread_scale(model, heldout)             # the spread's scale on held-out trajectories
-    point_spread_scales(run, scales)                 # [n_gp] each point's scale (the weak zone's own)
+    write_spread_scale(rows, csv, html)              # the rule's table of the scales
+    point_spread_scales(run, read_spread_scales(csv))   # [n_gp] each point's scale (the weak zone's own)
 """
 
 from __future__ import annotations
@@ -159,29 +159,6 @@ def step_summary(points: pd.DataFrame) -> pd.DataFrame:
         "median_error_kpa": grouped.error_kpa.median(),
         "p90_error_kpa": grouped.error_kpa.quantile(0.9),
     }).reset_index()
-
-
-def heldout_spread_scale(model, heldout: xr.Dataset) -> dict:
-    """The spread's scale on the held-out trajectories of the networks' dataset: the median over their
-    (step ≥ 1) samples of ‖σ_NN − σ_ref‖ / ‖spread‖, each member anchored as FEM–ML anchors it, fed
-    the trajectory's recorded strain and history (no FEM). Returns scale, pairs (samples with a
-    positive spread), trajectories and the 10th and 90th percentiles of the ratio; the scale is NaN
-    for one network (no spread)."""
-    from ..surrogate.dataset import features, sample_mask, sample_trajectories, targets
-
-    steps = np.broadcast_to(heldout["step"].values[:, None], (heldout.sizes["step"], heldout.sizes["gp"]))
-    later = steps.reshape(-1)[sample_mask(heldout)] >= 1  # step 0: the anchored fresh state, exact
-    x, y = features(heldout, model.history)[later], targets(heldout, "sigma")[later]
-    members = model.predict_members(x) + model.initial_offset(per_member=True)[:, None, :]
-    error = metrics.stress_norm(members.mean(axis=0) - y)
-    spread = metrics.stress_norm(members.std(axis=0))
-    positive = spread > 0
-    ratio = error[positive] / spread[positive]
-    nan = float("nan")
-    return {"scale": float(np.median(ratio)) if ratio.size else nan, "pairs": int(positive.sum()),
-            "trajectories": int(np.unique(sample_trajectories(heldout)[later]).size),
-            "p10_error_over_spread": float(np.percentile(ratio, 10)) if ratio.size else nan,
-            "p90_error_over_spread": float(np.percentile(ratio, 90)) if ratio.size else nan}
 
 
 def point_spread_scales(run: xr.Dataset, scales: Mapping[str, float], label: str = "FEM–ML run") -> np.ndarray:
@@ -356,18 +333,10 @@ SCALE_HEADERS = {
 }
 
 
-def make_spread_scale(networks: Mapping[str, tuple[str, str]], out_csv, out_html) -> pd.DataFrame:
-    """Rule table_spread_scale: for each network round (``networks``: name -> (NNσ model file, its
-    held-out dataset)), :func:`heldout_spread_scale` as a CSV and an HTML table; returns the table."""
-    from ..surrogate.dataset import read_dataset
-    from ..surrogate.models import SurrogateModel
-
-    rows = []
-    for name, (model_file, heldout_file) in networks.items():
-        scale = heldout_spread_scale(SurrogateModel.load(model_file), read_dataset(heldout_file))
-        rows.append({"networks": name, "model": str(model_file), "heldout_trajectories": scale.pop("trajectories"),
-                     **scale})
-    table = pd.DataFrame(rows)
+def write_spread_scale(rows: list[dict], out_csv, out_html) -> pd.DataFrame:
+    """Rule table_spread_scale: one row per network pair (networks, model, then what
+    ``surrogate.training.heldout_spread_scale`` returns) as a CSV and an HTML table; returns the table."""
+    table = pd.DataFrame(rows).rename(columns={"trajectories": "heldout_trajectories"})[list(SCALE_HEADERS)]
     tables.write_csv(table, out_csv)
     note = ("Each network pair's NNσ ensemble fed the strain histories of its held-out trajectories (whole "
             "trajectories the training never saw), per (step >= 1, trajectory): the realised error over the "
@@ -379,7 +348,7 @@ def make_spread_scale(networks: Mapping[str, tuple[str, str]], out_csv, out_html
 
 
 def read_spread_scales(path) -> dict[str, float]:
-    """{network round: scale} from a table of :func:`make_spread_scale`."""
+    """{network round: scale} from a table of :func:`write_spread_scale`."""
     integrity.verify(path, "spread-scale table")
     table = pd.read_csv(path)
     missing = {"networks", "scale"} - set(table.columns)

@@ -347,6 +347,30 @@ def initial_state(ds: xr.Dataset, kind: str, history=True) -> dict:
     }
 
 
+def heldout_spread_scale(model: SurrogateModel, heldout: xr.Dataset) -> dict:
+    """The ensemble spread's scale on the held-out trajectories of the networks' dataset: the median over
+    their (step ≥ 1) samples of ‖σ_NN − σ_ref‖ / ‖spread‖ (tensor norms, shear counted twice), each
+    member anchored as FEM–ML anchors it, fed the trajectory's recorded strain and history (no FEM).
+    Members trained on the same data share much of their error; this says by how much their spread
+    understates it, on data independent of any run it is then applied to (``analysis.calibration``).
+    Returns scale, pairs (samples with a positive spread), trajectories and the 10th and 90th
+    percentiles of the ratio; the scale is NaN for one network (no spread)."""
+    steps = np.broadcast_to(heldout["step"].values[:, None], (heldout.sizes["step"], heldout.sizes["gp"]))
+    later = steps.reshape(-1)[sample_mask(heldout)] >= 1  # step 0: the anchored fresh state, exact
+    x, y = features(heldout, model.history)[later], targets(heldout, "sigma")[later]
+    members = model.predict_members(x) + model.initial_offset(per_member=True)[:, None, :]
+    weight = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0])  # the tensor norm of a Voigt stress
+    error = np.sqrt(np.sum(weight * (members.mean(axis=0) - y) ** 2, axis=-1))
+    spread = np.sqrt(np.sum(weight * members.std(axis=0) ** 2, axis=-1))
+    positive = spread > 0
+    ratio = error[positive] / spread[positive]
+    nan = float("nan")
+    return {"scale": float(np.median(ratio)) if ratio.size else nan, "pairs": int(positive.sum()),
+            "trajectories": int(np.unique(sample_trajectories(heldout)[later]).size),
+            "p10_error_over_spread": float(np.percentile(ratio, 10)) if ratio.size else nan,
+            "p90_error_over_spread": float(np.percentile(ratio, 90)) if ratio.size else nan}
+
+
 def component_mae(model: SurrogateModel, train_ds: xr.Dataset, heldout_ds: xr.Dataset) -> pd.DataFrame:
     """MAE of every target in physical units (Pa) on the train and held-out points, and relative to its range."""
     out = {}
