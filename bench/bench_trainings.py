@@ -23,6 +23,7 @@ exist (delete to rerun). Training 0's runs are the pipeline's files.
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from pathlib import Path
@@ -114,7 +115,8 @@ def runs_of(plan: Plan, models: dict | None, folder: Path, workers: int, logger)
         made("adaptive biaxial", "biaxial", folder / "biaxial" / plan.problem_adaptive_method / f"{case}.h5",
              lambda file: run_adaptive(
                  biaxial_config, case, threshold, plan.packings, specimen["sigma"], specimen["tangent"], tangent,
-                 output=file, checkpoint=file.with_suffix(".ckpt"), n_workers=workers, logger=logger, allow_partial=True, problem="biaxial", weak_packing=plan.weak_packing_input("biaxial")[0]))
+                 output=file, checkpoint=file.with_suffix(".ckpt"), n_workers=workers, logger=logger,
+                 allow_partial=True, problem="biaxial", weak_packing=plan.weak_packing_input("biaxial")[0]))
     return runs
 
 
@@ -133,6 +135,12 @@ def training_distance(run, zones) -> np.ndarray:
     return distance
 
 
+@functools.lru_cache(maxsize=None)
+def spread_scale(model_file: str, heldout_file: str) -> float:
+    """The scale of a model file's spread on a held-out dataset (each training's runs share them)."""
+    return heldout_spread_scale(SurrogateModel.load(model_file), read_dataset(heldout_file))["scale"]
+
+
 def scaled_calibration(plan: Plan, run, reference) -> dict:
     """A FEM–ML run's median error / spread over every (step ≥ 1, point), as measured and with each
     point's spread scaled by its networks' scale on their held-out trajectories (the run's own model
@@ -140,8 +148,7 @@ def scaled_calibration(plan: Plan, run, reference) -> dict:
     files = {"specimen": (run.attrs["surrogate_sigma_model"], plan.layout.dataset("heldout"))}
     if run.attrs.get("surrogate_weak_zone_sigma_model"):
         files["weak_zone"] = (run.attrs["surrogate_weak_zone_sigma_model"], plan.layout.dataset("heldout", WEAK_ZONE_ROUND))
-    scales = {name: heldout_spread_scale(SurrogateModel.load(model), read_dataset(heldout))["scale"]
-              for name, (model, heldout) in files.items()}
+    scales = {name: spread_scale(str(model), str(heldout)) for name, (model, heldout) in files.items()}
     points = calibration.calibration_points(run, reference, spread_scale=calibration.point_spread_scales(run, scales))
     everything = calibration.calibration_table(points).iloc[-1]
     return {"spread scale": scales["specimen"], "median error / spread": everything.median_error_over_spread,

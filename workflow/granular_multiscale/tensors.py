@@ -30,6 +30,12 @@ ENGINEERING_FACTOR = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0])
 #: round-off of a symmetric computation is ~1e-16, a learned Jacobian's asymmetry ~1e-3 and more
 SYMMETRY_RTOL = 1e-10
 
+
+def tensor_norm(v: np.ndarray) -> np.ndarray:
+    """[..., 6] Voigt vector (tensorial shear) -> [...] the Frobenius norm of its tensor (shear counted twice)."""
+    return np.sqrt(np.sum(ENGINEERING_FACTOR * np.asarray(v) ** 2, axis=-1))
+
+
 # index of the Voigt component of tensor entry (i, j)
 VOIGT_INDEX = np.empty((3, 3), dtype=int)
 for _I, (_i, _j) in enumerate(VOIGT_PAIRS):

@@ -302,7 +302,8 @@ rule validation_tables:
         "../../scripts/analysis_validation.py"
 
 
-# the ensemble spread FEM–ML reports (surrogate.ensemble_size) against its realised error
+# the ensemble spread FEM–ML reports (surrogate.ensemble_size) against its realised error: its scale on
+# the networks' held-out trajectories, then the calibration of the validation run
 rule table_spread_scale:
     input:
         unpack(lambda wc: PLAN.spread_scale_inputs()),

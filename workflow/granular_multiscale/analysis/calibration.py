@@ -19,10 +19,10 @@ The members agree more than they are right: trained on the same data, they share
 error. ``surrogate.training.heldout_spread_scale`` measures by how much, on whole trajectories the
 training never saw (the dataset's held-out side, the networks fed their strain histories, no FEM):
 the median error / spread there is the spread's *scale*, one number per network pair (rule
-``table_spread_scale``, :func:`write_spread_scale`). The calibration of a run then also gives error / (scale × spread): about 1
-where the run's points are as far from the training as the held-out trajectories, above 1 where
-they are farther (the problems), so the scaled spread is fitted on data independent of the run it
-is judged on.
+``table_spread_scale``, :func:`write_spread_scale`). The calibration of a run then also gives
+error / (scale × spread): about 1 where the run's points are as far from the training as the
+held-out trajectories, above 1 where they are farther (the problems); the scale is fitted on data
+independent of the run it is judged on.
 
     points = calibration_points(run, reference)      # one row per (step ≥ 1, Gauss point)
     calibration_table(points)                        # per spread decile, then the row "all"

@@ -25,15 +25,14 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from ..tensors import COMP
+from ..tensors import COMP, tensor_norm
 
-_NORM_WEIGHT = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0])
 CURVE_QUANTITIES = ("top_force", "volumetric_strain")
 PHASE_ORDER = ("loading", "unloading", "reloading")
 
 
 def stress_norm(stress: np.ndarray) -> np.ndarray:
-    return np.sqrt(np.sum(_NORM_WEIGHT * np.asarray(stress) ** 2, axis=-1))
+    return tensor_norm(stress)
 
 
 def is_partial(run: xr.Dataset) -> bool:

@@ -27,7 +27,7 @@ from torch.func import jvp
 from ..atomic import atomic_path
 from ..history import accumulated_from_sequence, peak_from_sequence
 from ..novelty import TrainingStates, sample_states
-from ..tensors import ENGINEERING_FACTOR, tangent_from_upper
+from ..tensors import ENGINEERING_FACTOR, tangent_from_upper, tensor_norm
 from .dataset import features, history_selection, sample_mask, sample_trajectories, scaling, target_names, targets
 from .models import EnsembleMLP, ScaledMLP, SurrogateModel, trial_features
 
@@ -359,9 +359,7 @@ def heldout_spread_scale(model: SurrogateModel, heldout: xr.Dataset) -> dict:
     later = steps.reshape(-1)[sample_mask(heldout)] >= 1  # step 0: the anchored fresh state, exact
     x, y = features(heldout, model.history)[later], targets(heldout, "sigma")[later]
     members = model.predict_members(x) + model.initial_offset(per_member=True)[:, None, :]
-    weight = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0])  # the tensor norm of a Voigt stress
-    error = np.sqrt(np.sum(weight * (members.mean(axis=0) - y) ** 2, axis=-1))
-    spread = np.sqrt(np.sum(weight * members.std(axis=0) ** 2, axis=-1))
+    error, spread = tensor_norm(members.mean(axis=0) - y), tensor_norm(members.std(axis=0))
     positive = spread > 0
     ratio = error[positive] / spread[positive]
     nan = float("nan")
