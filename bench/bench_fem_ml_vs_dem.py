@@ -19,7 +19,8 @@ Printed, and written to the record (--out, default {output_dir}/bench/fem_ml_vs_
 run (``fem_dem``; ``fem_ml``; ``fem_ml_at_dem_tolerance``) seconds per load step, Newton
 iterations and evaluations per step, cutbacks, start-up and whole-run seconds; the ratios; the
 DEM cost per particle-step and its time split (``dem``); FEM–ML's top-force and volumetric-strain
-errors against FEM–DEM on these steps, in % of FEM–DEM's peak.
+errors against FEM–DEM on these steps, in % of FEM–DEM's peak; with --compare-models, the same
+for FEM–ML with each other folder's networks (``fem_ml_compared``), against the same FEM–DEM run.
 """
 
 from __future__ import annotations
@@ -72,12 +73,36 @@ def run_fem_dem(config, path, packing, workers, logger):
     return problem, ds, split, start, cfg["newton"]
 
 
+def run_fem_ml(config, path, sigma, tangent, logger, verbose: bool, label: str = "FEM–ML") -> dict:
+    """FEM–ML on the config's mesh along `path`: per_step figures, start-up and the run (``run``)."""
+    from granular_multiscale.drivers.fem_ml import surrogate_material
+
+    problem = TriaxialProblem.from_config(config)
+    t0 = time.perf_counter()
+    # the pipeline's factory (its surrogate settings: anchoring, surrogate.other_pressure at another
+    # confining pressure, p0 for networks that take it), with ND's tangent, which the --ml-newton
+    # default is tuned for
+    with surrogate_material(config, problem.n_gauss_points, sigma, tangent, "nn", logger) as material:
+        start = time.perf_counter() - t0
+        try:
+            ds = problem.run(material, path, logger=logger, progress=verbose)
+        except ConvergenceError as error:
+            print(f"{label} stopped: {error}; timing the steps it converged")
+            ds = error.partial
+            ds.attrs["completed"] = 0  # compared with FEM–DEM on the steps it reached
+    return {**per_step(ds), "start": start, "run": ds}
+
+
 def main(argv=None) -> dict:
     parser = bench_parser("fem_ml_vs_dem", __doc__, configfile=["config/tiny.yaml"])
     parser.add_argument("--steps", type=int, default=12, help="first N load steps of the validation path (57 = all)")
     parser.add_argument("--workers", type=int, default=2, help="RVE worker processes of FEM–DEM")
     parser.add_argument("--packing", help="a consolidated packing (default: the pipeline's, else made here)")
     parser.add_argument("--models", help="folder with nn_sigma.pt and nn_tangent.pt (default: train here)")
+    parser.add_argument("--compare-models", nargs="*", default=[], metavar="LABEL=DIR",
+                        help="more model folders, each run as FEM–ML on the same mesh and path beside the first and "
+                             "recorded under its label (e.g. networks that take the consolidation pressure p0 beside "
+                             "the prestrained default)")
     parser.add_argument("--ml-newton", nargs="*", default=["acceleration=anderson"],
                         help="newton overrides for FEM–ML, key=value (default: acceleration=anderson)")
     parser.add_argument("--verbose", action="store_true")
@@ -113,8 +138,6 @@ def main(argv=None) -> dict:
     dem = per_step(dem_ds)
 
     # -- FEM–ML on the same mesh and path: the pipeline's Newton settings, and FEM–DEM's tolerance
-    from granular_multiscale.drivers.fem_ml import surrogate_material
-
     overrides = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.ml_newton)}
     ml_config = validate_config({**config, "newton": {**config["newton"], **overrides}})
     sigma = tangent = models_note = None
@@ -125,19 +148,17 @@ def main(argv=None) -> dict:
         ml_problem = TriaxialProblem.from_config(cfg)
         if sigma is None:
             sigma, tangent, models_note = surrogate_models(cfg, args.models, ml_problem, logger)
-        t0 = time.perf_counter()
-        # the pipeline's factory (its surrogate settings: anchoring, surrogate.other_pressure at another
-        # confining pressure), with ND's tangent, which the --ml-newton default is tuned for
-        with surrogate_material(cfg, ml_problem.n_gauss_points, sigma, tangent, "nn", logger) as material:
-            start = time.perf_counter() - t0
-            try:
-                ds = ml_problem.run(material, path, logger=logger, progress=args.verbose)
-            except ConvergenceError as error:
-                print(f"{label} stopped: {error}; timing the steps it converged")
-                ds = error.partial
-                ds.attrs["completed"] = 0  # compared with FEM–DEM on the steps it reached
-        ml[label], ml_runs[label] = {**per_step(ds), "start": start}, ds
+        run = run_fem_ml(cfg, path, sigma, tangent, logger, args.verbose, label)
+        ml_runs[label] = run.pop("run")
+        ml[label] = run
     ml_ds = ml_runs["FEM–ML"]
+    compared = {}
+    for entry in args.compare_models:
+        label, _, folder = entry.rpartition("=")
+        other_sigma, other_tangent, note = surrogate_models(ml_config, folder, ml_problem, logger)
+        compared[label or folder] = run_fem_ml(ml_config, path, other_sigma, other_tangent, logger, args.verbose,
+                                               label or folder)
+        compared[label or folder]["networks"] = note
 
     # -- report
     n_gp = problem.n_gauss_points
@@ -176,6 +197,13 @@ def main(argv=None) -> dict:
     volumetric = curve_error_pct(dem_ds, ml_ds, "volumetric_strain")["all"]
     print(f"  (FEM–ML vs FEM–DEM on these steps: top force max difference {top:.1f} %, volumetric strain "
           f"{volumetric:.1f} % of the peak — only meaningful with networks trained on this DEM)")
+    for label, run in compared.items():
+        ds = run.pop("run")
+        run.update(top_force_error_pct=top_force_error_pct(dem_ds, ds),
+                   volumetric_strain_error_pct=curve_error_pct(dem_ds, ds, "volumetric_strain")["all"])
+        print(f"  FEM–ML with {label} ({run['networks']}): top force {run['top_force_error_pct']:.1f} %, volumetric strain "
+              f"{run['volumetric_strain_error_pct']:.1f} % of the peak, {run['s_per_step']:.4f} s per load step, "
+              f"{run['cutbacks']} cutbacks")
     figures = {"mesh": "x".join(map(str, problem.mesh_elements)), "gauss_points": n_gp,
                "n_spheres": config["dem"]["n_spheres"], "steps": path.n_steps, "path": full_path.name,
                "packing": packing_note, "networks": models_note,
@@ -184,7 +212,8 @@ def main(argv=None) -> dict:
                "ratio_s_per_step": dem["s_per_step"] / a["s_per_step"],
                "ratio_s_per_step_at_dem_tolerance": dem["s_per_step"] / b["s_per_step"],
                "ratio_whole_run": dem["total_s"] / a["total_s"],
-               "dem": dem_cost, "fem_ml_top_force_error_pct": top, "fem_ml_volumetric_strain_error_pct": volumetric}
+               "dem": dem_cost, "fem_ml_top_force_error_pct": top, "fem_ml_volumetric_strain_error_pct": volumetric,
+               "fem_ml_compared": compared}
     measurement.finish(figures, args.out)
     print(f"wrote {args.out}")
     return figures

@@ -426,7 +426,10 @@ def render_fem_ml_vs_dem(record: dict) -> str:
             f"{'the networks of a pipeline run' if f['networks'].startswith('pipeline models') else f['networks']}. "
             f"FEM–ML against FEM–DEM: "
             f"top force {f['fem_ml_top_force_error_pct']:.1f} %, volumetric strain "
-            f"{f['fem_ml_volumetric_strain_error_pct']:.0f} % of the peak (largest over the path).\n")
+            f"{f['fem_ml_volumetric_strain_error_pct']:.0f} % of the peak (largest over the path)."
+            + "".join(f" With {label}: top force {run['top_force_error_pct']:.1f} %, volumetric strain "
+                      f"{run['volumetric_strain_error_pct']:.0f} %." for label, run in f.get("fem_ml_compared", {}).items())
+            + "\n")
 
 
 RENDERERS = {"headline": render_headline, "rules": render_rules, "fem_ml": render_fem_ml, "problems": render_problems,

@@ -73,14 +73,17 @@ def test_cover_range_split_scales_over_the_whole_specimen(run, seed):
     of the same seed may be narrower, never wider."""
     train, heldout = build_dataset(run, 0.75, seed=seed, split="cover_range")
     everything = np.concatenate([run.strain.values, history_from_sequence(run.strain.values)], axis=-1)
-    np.testing.assert_array_equal(train.feature_min.values, everything.min(axis=(0, 1)))
-    np.testing.assert_array_equal(train.feature_max.values, everything.max(axis=(0, 1)))
+    computed = train.feature[: everything.shape[-1]]  # the strains and φ1..ψ2; then p0, which this run records not
+    np.testing.assert_array_equal(train.feature_min.sel(feature=computed).values, everything.min(axis=(0, 1)))
+    np.testing.assert_array_equal(train.feature_max.sel(feature=computed).values, everything.max(axis=(0, 1)))
+    assert np.isnan(train.feature_min.sel(feature="p0")) and np.isnan(train.feature_max.sel(feature="p0"))
     assert set(train.attrs["range_extreme_gp"]) <= set(train.gp.values) and train.attrs["split_method"] == "cover_range"
     # the extremes are those of the strains and φ1–φ3 (ψ1, ψ2 left out: the split φ-only configs had)
     np.testing.assert_array_equal(train.attrs["range_extreme_gp"], run.gp.values[range_extremes(everything[..., :9])])
     assert (train.sizes["gp"], heldout.sizes["gp"]) == (15, 5)
     drawn, _ = build_dataset(run, 0.75, seed=seed)
-    assert np.all(drawn.feature_max.values - drawn.feature_min.values <= train.feature_max.values - train.feature_min.values)
+    assert np.all(drawn.feature_max.sel(feature=computed).values - drawn.feature_min.sel(feature=computed).values
+                  <= train.feature_max.sel(feature=computed).values - train.feature_min.sel(feature=computed).values)
     with pytest.raises(ValueError, match="surrogate.split"):
         build_dataset(run, 0.75, seed=seed, split="stratified")
 
@@ -218,7 +221,7 @@ def test_sources_of_different_lengths_are_padded_and_masked(run):
     assert np.isnan(padded.stress.values[20:]).all()
     # features/targets hold the valid samples only, and the scaling ignores the padding
     n_valid = int(train.valid.values.sum())
-    assert features(train, history=HIST).shape == (n_valid, len(FEATURES)) and np.isfinite(targets(train, "sigma")).all()
+    assert features(train, history=HIST).shape == (n_valid, 6 + len(HIST)) and np.isfinite(targets(train, "sigma")).all()
     assert np.isfinite(train.stress_min.values).all()
     # each source is split on its own: both sides hold trajectories of both
     for side in (train, heldout):

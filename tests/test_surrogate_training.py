@@ -165,8 +165,10 @@ def test_ensemble_is_the_mean_of_its_members(data, tmp_path):
     single, _, _ = train(*data, "sigma", FAST, seed=3)
     ensemble, losses, mae = train(*data, "sigma", dict(FAST, ensemble_size=3), seed=3)
     assert isinstance(ensemble.network, EnsembleMLP) and ensemble.ensemble_size == 3
+    # member 0 was fitted in the members' stacked batch: float32 rounding of the batched products
+    # (bit-identical with some BLAS builds, not all), as test_members_fitted_together_... allows
     for (name, pa), pb in zip(single.network.state_dict().items(), ensemble.members[0].state_dict().values()):
-        assert torch.equal(pa, pb), name
+        np.testing.assert_allclose(pa.numpy(), pb.numpy(), rtol=1e-5, atol=1e-6, err_msg=name)
     assert not torch.equal(ensemble.members[1].net[0].weight, ensemble.members[2].net[0].weight)
     assert len(set(ensemble.training["member_seeds"])) == 3 and ensemble.training["seed"] == single.training["seed"]
     assert losses.groupby("member").epoch.max().tolist() == [FAST["epochs"]] * 3

@@ -137,3 +137,22 @@ def test_loading_the_workflow_reads_no_result_file(tmp_path):
     assert f"output: {L.table('headline.json')}, {L.table('headline.html')}" in output
     assert (out / "tables" / "headline.json").read_text() == "{not json"
     assert sorted(p.name for p in (out / "tables").iterdir()) == ["headline.json", "tolerance_study.csv"]
+
+
+def test_a_set_at_another_consolidation_pressure_gets_packings_of_its_own(tmp_path):
+    """A training set with consolidation_pressure 0.5: `all` schedules rve_pressure for rve_p0.5/ and
+    feeds that packing to the set's rule rve_paths; the specimen's packing stays that of rule rve."""
+    out = tmp_path / "tiny"
+    config = tmp_path / "p0.yaml"
+    config.write_text(f"output_dir: {out}\n"
+                      "rve_paths: {sets: {low: {triaxial: 2, n_steps: 5, consolidation_pressure: 0.5}}}\n"
+                      "surrogate: {training_sources: [path1, 'rve_paths:low'], history_variables: [phi1, phi2, p0]}\n")
+    command = [SNAKEMAKE, "-n", "all", "--configfile", "config/tiny.yaml", str(config)]
+    result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output[-3000:]
+    L = Layout(out)
+    packing = L.packings(1, pressure="0.5")[0]
+    assert f"output: {packing}, {L.packing_summary(pressure='0.5')}" in output
+    assert re.search(rf"input: {re.escape(packing)}\n\s+output: {re.escape(L.rve_paths('low'))}", output), output[-3000:]
+    assert f"output: {L.packings(1)[0]}, {L.packing_summary()}" in output

@@ -233,6 +233,11 @@ def _check_weak_zone_sources(config: dict) -> None:
             raise ConfigError(f"config key 'surrogate.training_sources': the set {name!r} drives the weak zone's "
                               f"packing, another material than the specimen's; list it in "
                               f"'surrogate.weak_zone_sources' instead")
+    for name, definition in sets.items():
+        if definition["packing"] == "weak_zone" and definition["consolidation_pressure"] != 1.0:
+            raise ConfigError(f"config key 'rve_paths.sets.{name}.consolidation_pressure': "
+                              f"{definition['consolidation_pressure']:g} needs the specimen's packings (packing: "
+                              "specimen); the weak zone's packing is consolidated at specimen.confining_pressure")
 
 
 def _check_consistency(config: dict, schema: dict) -> None:

@@ -80,15 +80,18 @@ class Layout:
         """Where a long run checkpoints (not a declared output: a rerun after a kill resumes)."""
         return self._file("checkpoints", f"{key}.ckpt")
 
-    # RVE packings: rule rve, and at another sphere count (rve_n<n>/)
-    def rve_folder(self, spheres=None) -> str:
+    # RVE packings: rule rve, at another sphere count (rve_n<n>/) and consolidated at another pressure
+    # g·p0 (rve_p<g>/)
+    def rve_folder(self, spheres=None, pressure=None) -> str:
+        if pressure is not None:
+            return f"rve_p{pressure}"
         return "rve" if spheres is None else f"rve_n{spheres}"
 
-    def packings(self, n_packings: int, spheres=None) -> list[str]:
-        return [self._file(self.rve_folder(spheres), f"packing_{k}.yade.gz") for k in range(n_packings)]
+    def packings(self, n_packings: int, spheres=None, pressure=None) -> list[str]:
+        return [self._file(self.rve_folder(spheres, pressure), f"packing_{k}.yade.gz") for k in range(n_packings)]
 
-    def packing_summary(self, spheres=None) -> str:
-        return self._file(self.rve_folder(spheres), "summary.json")
+    def packing_summary(self, spheres=None, pressure=None) -> str:
+        return self._file(self.rve_folder(spheres, pressure), "summary.json")
 
     def weak_packing(self) -> str:
         return self._file("rve", "packing_weak.yade.gz")
@@ -253,9 +256,11 @@ class Plan:
         none for the elastoplastic model."""
         if self.reference != "fem_dem":
             return []
-        if self.config["rve_paths"]["sets"][name]["packing"] == "weak_zone":
+        definition = self.config["rve_paths"]["sets"][name]
+        if definition["packing"] == "weak_zone":  # consolidated at p0 (validate_config)
             return [self.layout.weak_packing()]
-        return self.packings
+        fraction = definition["consolidation_pressure"]
+        return self.packings if fraction == 1.0 else self.layout.packings(self.n_packings, pressure=f"{fraction:g}")
 
     def weak_zone_models(self, problem: str) -> dict[str, str]:
         """{weak_sigma, weak_tangent: model file} of the weak zone's networks, for FEM–ML on a problem

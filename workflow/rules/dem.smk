@@ -1,6 +1,7 @@
 # FEM–DEM stage: RVE packings (YADE) and the FEM–DEM reference runs of every load path.
 #
 #   rve      {OUT}/rve/packing_<k>.yade.gz (k = 0..dem.n_packings-1) + {OUT}/rve/summary.json
+#            (rve_pressure: the same at another consolidation pressure, {OUT}/rve_p<g>/)
 #   fem_dem  {OUT}/fem_dem/{path}.h5, checkpoint and RVE snapshots under {OUT}/checkpoints/fem_dem/
 #            (not declared outputs: a rerun after a kill resumes from them)
 #   rve_paths  {OUT}/rve_paths/{name}.h5 for a set of rve_paths.sets: RVEs driven along designed strain
@@ -92,6 +93,26 @@ use rule rve as rve_spheres with:
         L.benchmark("rve_n{n}")
     wildcard_constraints:
         n=r"\d+",
+
+
+# packings consolidated at g·p0 for the RVE-path sets with consolidation_pressure g (the networks'
+# history variable p0):   {OUT}/rve_p{g}/...
+
+
+use rule rve as rve_pressure with:
+    output:
+        packings=L.packings(PLAN.n_packings, pressure="{g}"),
+        summary=L.packing_summary(pressure="{g}"),
+    params:
+        dem=PLAN.packing_definition,
+        pressure=lambda wildcards: float(wildcards.g) * config["specimen"]["confining_pressure"],
+        seed=config["seed"],
+    log:
+        L.log("rve_p{g}"),
+    benchmark:
+        L.benchmark("rve_p{g}")
+    wildcard_constraints:
+        g=r"[0-9.]+",
 
 
 use rule fem_dem as fem_dem_spheres with:

@@ -281,11 +281,15 @@ def state_ranges(runs: Mapping[str, xr.Dataset], confining_pressure: float,
 
 def run_features(run: xr.Dataset, history: tuple[str, ...]) -> np.ndarray:
     """[steps, n_gp, 6 + len(history)] the networks' inputs along a run's converged strains: the
-    strain and the history variables named (``history.HIST``), accumulated as FEM–ML does."""
+    strain and the history variables named (``history.HIST``), accumulated as FEM–ML does, and p0,
+    the consolidation pressure, where named: the run's confining pressure, as FEM–ML gives it."""
     strain = _values(run, "strain")
-    if not history:
-        return strain
-    values = history_from_sequence(strain)[..., [HIST.index(h) for h in history]]
-    return np.concatenate([strain, values], axis=-1)
+    parts = [strain]
+    computed = [h for h in history if h in HIST]
+    if computed:
+        parts.append(history_from_sequence(strain)[..., [HIST.index(h) for h in computed]])
+    if "p0" in history:
+        parts.append(np.full((*strain.shape[:-1], 1), float(run.attrs["confining_pressure_Pa"])))
+    return np.concatenate(parts, axis=-1) if len(parts) > 1 else strain
 
 

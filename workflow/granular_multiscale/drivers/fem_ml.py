@@ -17,7 +17,9 @@ A specimen at another confining pressure than the networks' training RVEs (``sur
 :func:`at_specimen_pressure`): ``offset`` runs the networks as they are, anchored to their training
 data's fresh state; ``isotropic_prestrain`` first takes them along an isotropic strain to the
 specimen's pressure (:class:`~granular_multiscale.materials.wrappers.IsotropicPrestrain`). The solver
-sees a material-point set either way.
+sees a material-point set either way. Networks that take the consolidation pressure as an input
+(history variable ``p0``, trained on RVEs prepared at several pressures) need neither: they are
+given the specimen's.
 """
 
 from __future__ import annotations
@@ -119,6 +121,7 @@ def surrogate_material(config: dict, n_points: int, sigma_model, tangent_model, 
         out_of_range_tolerance=float(config["surrogate"]["out_of_range_tolerance"]),
         logger=logger,
         anchor_initial_state=bool(config["surrogate"]["anchor_initial_state"]),
+        consolidation_pressure=float(config["specimen"]["confining_pressure"]),  # for networks that take p0
     )
     return at_specimen_pressure(material, float(config["specimen"]["confining_pressure"]),
                                 config["surrogate"]["other_pressure"], logger)
@@ -131,10 +134,15 @@ def at_specimen_pressure(material: SurrogateMaterial, pressure: float, other_pre
     trained at `pressure`, with a warning) they are returned as they are. At another one,
     `other_pressure` (config ``surrogate.other_pressure``) decides: ``offset`` leaves them anchored
     to their training data's fresh state, ``isotropic_prestrain`` wraps them in
-    :class:`IsotropicPrestrain` (an isotropic strain to `pressure`, then −pressure·1 at zero strain)."""
+    :class:`IsotropicPrestrain` (an isotropic strain to `pressure`, then −pressure·1 at zero strain).
+    Networks that take p0 (history variable ``p0``) are given `pressure` as it, at any pressure."""
     logger = logger or logging.getLogger("granular_multiscale.fem_ml")
     if other_pressure not in OTHER_PRESSURE:
         raise ValueError(f"config key 'surrogate.other_pressure' must be one of {OTHER_PRESSURE}, got {other_pressure!r}")
+    if material.sigma_model.takes_pressure:
+        material.set_consolidation_pressure(pressure)
+        logger.info("networks that take the consolidation pressure p0: %g Pa, the specimen's", pressure)
+        return material
     trained = material.sigma_model.training_pressure
     if trained is None:
         logger.warning("the NNσ model file records no confining pressure of its training RVEs (trained before it "
@@ -168,6 +176,8 @@ def surrogate_attributes(material: MaterialPointSet, sigma_model, tangent_model)
     trained = material.sigma_model.training_pressure
     if trained is not None:
         attributes["surrogate_training_pressure_Pa"] = trained
+    if getattr(material, "consolidation_pressure", None) is not None:
+        attributes["surrogate_consolidation_pressure_Pa"] = material.consolidation_pressure
     if isinstance(material, IsotropicPrestrain):
         attributes.update({"surrogate_prestrain_pressure_Pa": material.pressure,
                            "surrogate_prestrain": float(material.prestrain[:, 0].mean()),

@@ -10,6 +10,10 @@ a :class:`DemMaterialPointSet`, or the analytic elastoplastic model (the fast st
 and ``config/elastoplastic.yaml``). The file follows the data contract with one ``gp`` per
 trajectory (``data.RVE_PATHS_VARIABLES``).
 
+A set with ``consolidation_pressure`` g drives packings consolidated at g·p0 (rule rve_pressure):
+its families' stress targets, its contact-loss criterion and its file's ``confining_pressure``
+are g·p0 (:func:`at_consolidation_pressure`).
+
 Contact loss (``rve_paths.contact_loss``): an RVE whose mean stress p = −tr σ/3 falls below
 ``min_mean_stress_fraction`` × the confining pressure, or whose contact-stiffness tangent is not
 positive definite, has lost its contact network. It is reported in the log (trajectory, family,
@@ -23,6 +27,7 @@ committed increments, bit for bit), one under another signature is set aside wit
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import logging
@@ -60,6 +65,18 @@ def contact_lost(stress: np.ndarray, tangent: np.ndarray, pressure: float,
     return low_p | not_pd, reasons
 
 
+def at_consolidation_pressure(config: dict, set_name: str) -> dict:
+    """The config set `set_name` is driven with: its RVEs were consolidated at g·p0 (the set's
+    ``consolidation_pressure`` g), and so are the stresses its families target, its contact-loss
+    criterion and the pressure its file records (history variable p0 of the networks)."""
+    fraction = float(set_definition(config, set_name).get("consolidation_pressure", 1.0))
+    if fraction == 1.0:
+        return config
+    config = copy.deepcopy(config)
+    config["specimen"]["confining_pressure"] = fraction * float(config["specimen"]["confining_pressure"])
+    return config
+
+
 def _signature(config: dict, set_name: str, paths: StrainPaths, material) -> dict:
     return {
         "format": CHECKPOINT_FORMAT,
@@ -78,6 +95,7 @@ def run_rve_paths(config: dict, set_name: str, packing_paths: list[str], output:
                   dask_client=None) -> xr.Dataset:
     """Drive the set ``rve_paths.sets.<set_name>`` and write it to ``output``; returns the Dataset."""
     logger = logger or logging.getLogger("granular_multiscale.drivers.rve_paths")
+    config = at_consolidation_pressure(config, set_name)
     paths = strain_paths_from_config(config, set_name)
     n_traj, n_steps = paths.n_trajectories, paths.n_steps
     pressure = float(config["specimen"]["confining_pressure"])

@@ -3,7 +3,8 @@
 Every (step, trajectory) of every training source is one sample:
 
     features  strain_11 .. strain_12 (tensorial, Voigt order of ``tensors.COMP``), and those of
-              phi1, phi2, phi3, psi1, psi2 (``history.HIST``) that ``surrogate.history_variables`` selects
+              phi1, phi2, phi3, psi1, psi2 (``history.HIST``) and p0 that ``surrogate.history_variables``
+              selects
     targets   stress_11 .. stress_12 (Pa, tension positive)             -> NNσ
               tangent_1111 .. tangent_1212 (21 upper-triangle entries)  -> ND
 
@@ -11,7 +12,10 @@ A *trajectory* is one Gauss point of a reference run (FEM–DEM or the elastopla
 one RVE of an RVE-path set (``dem.strain_paths``). The history variables (φ1–φ3, ψ1, ψ2) are
 recomputed from each trajectory's strain sequence (``history.history_from_sequence``), exactly as
 the surrogate material accumulates them during an FEM–ML run; a dataset holds all of them, the
-networks take the selected ones.
+networks take the selected ones. p0 (``CONSOLIDATION_PRESSURE``) is the mean stress (Pa) the RVE was
+consolidated at, the one history variable that its preparation, not its strain path, writes: it
+is constant along a trajectory, recorded by its source (:func:`source_pressure`), and lets one
+pair of networks answer for specimens prepared at other pressures.
 
 Held out by trajectory class. On a symmetric mesh with one packing, mirrored Gauss points follow
 the same strain history; a held-out mirror image of a training point is a copy, not a test.
@@ -27,7 +31,7 @@ Files (``train.h5``, ``heldout.h5``) follow the run-file contract: coordinates `
 (the trajectory: with one run as the only source, its Gauss-point id; otherwise a running index),
 ``comp``, ``tcomp``, ``hist``, ``feature``, and per trajectory ``source`` (file), ``source_gp``
 (Gauss point or RVE in that file) and ``trajectory_class``; variables ``strain``, ``history``,
-``stress``, ``tangent``, ``valid(step, gp)`` (False on the padding of a source with fewer steps
+``stress``, ``tangent``, ``consolidation_pressure(gp)``, ``valid(step, gp)`` (False on the padding of a source with fewer steps
 and after an RVE lost its contact network), ``gp_position`` (run sources) and the scaling
 ``feature_min/max(feature)``, ``stress_min/max(comp)``, ``tangent_min/max(tcomp)``. Attrs
 ``train_gp``/``heldout_gp``: the mesh Gauss points of the run sources on each side (what the
@@ -48,7 +52,9 @@ from ..history import HIST, PHI, history_from_sequence
 from ..tensors import COMP, TCOMP
 
 STRAIN_FEATURES = tuple(f"strain_{c}" for c in COMP)
-HISTORY_FEATURES = HIST
+#: the history variable of the preparation: the mean stress (Pa) the RVE was consolidated at
+CONSOLIDATION_PRESSURE = "p0"
+HISTORY_FEATURES = HIST + (CONSOLIDATION_PRESSURE,)
 FEATURES = STRAIN_FEATURES + HISTORY_FEATURES
 STRESS_TARGETS = tuple(f"stress_{c}" for c in COMP)
 TANGENT_TARGETS = tuple(f"tangent_{c}" for c in TCOMP)
@@ -66,17 +72,28 @@ TRAJECTORY_SETS = ("rve_paths", "adaptive_dem")
 
 def history_selection(history=True) -> tuple[str, ...]:
     """Which history variables a network takes: True = φ1–φ3 (the paper), False = none (the
-    ablation), or a list of names from ``history.HIST`` (config ``surrogate.history_variables``),
-    returned in the order of ``HIST``."""
+    ablation), or a list of names from ``HISTORY_FEATURES`` (config ``surrogate.history_variables``),
+    returned in that order (p0 last)."""
     if history is True:
         return PHI
     if history is False or history is None:
         return ()
     chosen = tuple(str(h) for h in history)
-    unknown = [h for h in chosen if h not in HIST]
+    unknown = [h for h in chosen if h not in HISTORY_FEATURES]
     if unknown or len(set(chosen)) != len(chosen):
-        raise ValueError(f"config key 'surrogate.history_variables': expected distinct names from {list(HIST)}, got {list(chosen)}")
-    return tuple(h for h in HIST if h in chosen)
+        raise ValueError("config key 'surrogate.history_variables': expected distinct names from "
+                         f"{list(HISTORY_FEATURES)}, got {list(chosen)}")
+    return tuple(h for h in HISTORY_FEATURES if h in chosen)
+
+
+def strain_history(history) -> tuple[str, ...]:
+    """The selected history variables that the strain path writes (``history.HIST``): all but p0."""
+    return tuple(h for h in history_selection(history) if h in HIST)
+
+
+def takes_pressure(history) -> bool:
+    """Whether the selection includes p0, the consolidation pressure."""
+    return CONSOLIDATION_PRESSURE in history_selection(history)
 
 
 def feature_names(history=True) -> tuple[str, ...]:
@@ -264,7 +281,7 @@ def build_dataset_from_sources(sources, train_fraction: float, seed: int, split:
         raise DatasetError("no training sources (config key 'surrogate.training_sources')")
     n_steps = max(run.sizes["step"] for _, run in sources)
     parts = {k: [] for k in ("strain", "history", "stress", "tangent", "valid", "source", "source_gp", "klass", "train",
-                             "position", "is_run")}
+                             "position", "is_run", "pressure")}
     n_classes, offset, extremes = 0, 0, []
     for k, (name, run) in enumerate(sources):
         _check_contract(run, name)
@@ -291,6 +308,8 @@ def build_dataset_from_sources(sources, train_fraction: float, seed: int, split:
         parts["klass"].append(classes + n_classes)
         parts["train"].append(is_train)
         parts["is_run"].append(np.full(run.sizes["gp"], is_run))
+        pressure = source_pressure(run)  # NaN where the source records none: p0 cannot be a feature then
+        parts["pressure"].append(np.full(run.sizes["gp"], np.nan if pressure is None else pressure))
         parts["position"].append(run["gp_position"].transpose("gp", ...).values if "gp_position" in run
                                  else np.full((run.sizes["gp"], 3), np.nan))
         extremes.extend(offset + np.asarray(always, dtype=np.int64))
@@ -305,7 +324,8 @@ def build_dataset_from_sources(sources, train_fraction: float, seed: int, split:
         samples = values[:, train_idx][valid[:, train_idx]]
         return minmax(samples, axis=0)
 
-    features_all = np.concatenate([cat["strain"], cat["history"]], axis=-1)
+    pressure_column = np.broadcast_to(cat["pressure"][None, :, None], (n_steps, cat["pressure"].size, 1))
+    features_all = np.concatenate([cat["strain"], cat["history"], pressure_column], axis=-1)
     f_min, f_max = train_minmax(features_all)
     s_min, s_max = train_minmax(cat["stress"])
     t_min, t_max = train_minmax(cat["tangent"])
@@ -322,6 +342,7 @@ def build_dataset_from_sources(sources, train_fraction: float, seed: int, split:
                 "; the symmetric part of the run's non-symmetric tangent (tangent_full)" if any("tangent_full" in r for _, r in sources) else "")}),
             "valid": (("step", "gp"), valid, {"long_name": "the sample exists (not padding, RVE still in contact)"}),
             "gp_position": (("gp", "xyz"), cat["position"], {"units": "m", "long_name": "Gauss-point position (NaN for an RVE path)"}),
+            "consolidation_pressure": (("gp",), cat["pressure"], {"units": "Pa", "long_name": "mean stress the RVE was consolidated at, history variable p0 (NaN: its source records none)"}),
             "feature_min": (("feature",), f_min, {"long_name": "minimum of each feature over the training samples"}),
             "feature_max": (("feature",), f_max, {"long_name": "maximum of each feature over the training samples"}),
             "stress_min": (("comp",), s_min, {"units": "Pa"}),
@@ -425,11 +446,28 @@ def features(ds: xr.Dataset, history=True) -> np.ndarray:
     """[samples, 6 + n_history] raw feature matrix, samples ordered step-major, the valid ones only
     (see history_selection, sample_mask)."""
     parts = [ds["strain"].transpose("step", "gp", "comp").values]
-    chosen = history_selection(history)
+    chosen = strain_history(history)
     if chosen:
         parts.append(ds["history"].sel(hist=list(_held(ds, chosen))).transpose("step", "gp", "hist").values)
+    if takes_pressure(history):
+        pressure = consolidation_pressures(ds)
+        parts.append(np.broadcast_to(pressure[None, :, None], (ds.sizes["step"], pressure.size, 1)))
     x = np.concatenate(parts, axis=-1)
     return x.reshape(-1, x.shape[-1])[sample_mask(ds)]
+
+
+def consolidation_pressures(ds: xr.Dataset) -> np.ndarray:
+    """[gp] p0 of each trajectory (Pa); DatasetError naming a source that records none."""
+    if "consolidation_pressure" not in ds:
+        raise DatasetError(f"dataset ({ds.attrs.get('split', '?')} split of {ds.attrs.get('source', '?')}) records no "
+                           "consolidation pressure; rebuild it (rule surrogate_dataset) for the history variable p0")
+    pressure = ds["consolidation_pressure"].values
+    unknown = ~np.isfinite(pressure)
+    if unknown.any():
+        sources = sorted({str(s) for s in ds["source"].values[unknown]}) if "source" in ds.coords else ["the run"]
+        raise DatasetError(f"history variable p0: the training sources {sources} record no confining pressure "
+                           "(attribute confining_pressure_Pa or confining_pressure)")
+    return pressure
 
 
 def targets(ds: xr.Dataset, kind: str) -> np.ndarray:
@@ -442,7 +480,9 @@ def targets(ds: xr.Dataset, kind: str) -> np.ndarray:
 
 def scaling(ds: xr.Dataset, kind: str, history=True) -> dict[str, np.ndarray]:
     """Feature and target min/max stored with the dataset (fitted on the training points)."""
-    _held(ds, history_selection(history))
+    _held(ds, strain_history(history))
+    if takes_pressure(history):
+        consolidation_pressures(ds)
     names = list(feature_names(history))
     var = "stress" if kind == "sigma" else "tangent"
     target_names(kind)

@@ -71,7 +71,7 @@ from ..history import HIST, accumulate, history_jacobian_torch, history_variable
 from ..materials.base import MaterialPointSet
 from ..novelty import NEIGHBOURS, NOVELTY_QUANTILE, OffTrainingTracker, TrainingStates
 from ..tensors import ENGINEERING_FACTOR, UPPER, voigt_to_tensor
-from .dataset import STRAIN_FEATURES
+from .dataset import STRAIN_FEATURES, strain_history
 from .models import SurrogateModel, trial_features
 
 TANGENTS = ("nn", "autodiff")
@@ -117,6 +117,7 @@ class SurrogateMaterial(MaterialPointSet):
         out_of_range_tolerance: float = 0.0,
         logger: logging.Logger | None = None,
         anchor_initial_state: bool = True,
+        consolidation_pressure: float | None = None,
     ):
         super().__init__(n_points)
         if tangent not in TANGENTS:
@@ -152,11 +153,8 @@ class SurrogateMaterial(MaterialPointSet):
         self._off_training = OffTrainingTracker(self._training_states) if self._training_states is not None else None
         self._off_training_most = 0  # the most points off the training data in one committed state yet
         self.anchor_initial_state = bool(anchor_initial_state)
-        self._sigma_offset = self._offset(self.sigma_model)
-        self._tangent_offset = self._offset(self.tangent_model) if self.tangent_model else None
         self.ensemble_size = sigma_model.ensemble_size
-        self._member_offsets = (torch.as_tensor(sigma_model.initial_offset(per_member=True), dtype=self.dtype)
-                                if self.anchor_initial_state else torch.zeros(self.ensemble_size, 6, dtype=self.dtype))
+        self.set_consolidation_pressure(consolidation_pressure)
 
         self._strain_c = np.zeros((self.n_points, 6))
         self._acc_c = np.zeros((self.n_points, 6))
@@ -179,16 +177,33 @@ class SurrogateMaterial(MaterialPointSet):
         out_of_range_tolerance: float = 0.0,
         logger: logging.Logger | None = None,
         anchor_initial_state: bool = True,
+        consolidation_pressure: float | None = None,
     ) -> "SurrogateMaterial":
         sigma = SurrogateModel.load(sigma_path)
         nd = SurrogateModel.load(tangent_path) if (tangent == "nn" and tangent_path is not None) else None
-        return cls(n_points, sigma, nd, tangent, out_of_range_tolerance, logger, anchor_initial_state)
+        return cls(n_points, sigma, nd, tangent, out_of_range_tolerance, logger, anchor_initial_state,
+                   consolidation_pressure)
+
+    def set_consolidation_pressure(self, pressure: float | None) -> None:
+        """p0 (Pa) of every point, for networks that take it (``SurrogateModel.takes_pressure``): the
+        input, and the fresh state's offsets at that pressure. Networks that do not take it ignore it."""
+        takes = self.sigma_model.takes_pressure
+        if takes and (pressure is None or not np.isfinite(pressure) or pressure <= 0):
+            raise ValueError(f"the networks take p0, the consolidation pressure: expected a positive number of Pa, "
+                             f"got {pressure!r}")
+        self.consolidation_pressure = float(pressure) if takes else None
+        self._pressure = torch.tensor(self.consolidation_pressure, dtype=self.dtype) if takes else None
+        self._sigma_offset = self._offset(self.sigma_model)
+        self._tangent_offset = self._offset(self.tangent_model) if self.tangent_model else None
+        self._member_offsets = (torch.as_tensor(self.sigma_model.initial_offset(
+                                    per_member=True, pressure=self.consolidation_pressure), dtype=self.dtype)
+                                if self.anchor_initial_state else torch.zeros(self.ensemble_size, 6, dtype=self.dtype))
 
     def _offset(self, model: SurrogateModel) -> torch.Tensor:
         n_out = len(model.target_names)
         if not self.anchor_initial_state:
             return torch.zeros(n_out, dtype=self.dtype)
-        return torch.as_tensor(model.initial_offset(), dtype=self.dtype)
+        return torch.as_tensor(model.initial_offset(pressure=self.consolidation_pressure), dtype=self.dtype)
 
     # ---------------------------------------------------------------- inputs
     def _range_bounds(self, tolerance: float) -> None:
@@ -212,7 +227,7 @@ class SurrogateMaterial(MaterialPointSet):
 
     def _features(self, strain: torch.Tensor, acc_c, strain_c, peak_c) -> torch.Tensor:
         """[..., 6] trial strain -> [..., 6 + n_history] network features."""
-        return trial_features(strain, acc_c, strain_c, peak_c, self.sigma_model.history)
+        return trial_features(strain, acc_c, strain_c, peak_c, self.sigma_model.history, self._pressure)
 
     def _out_of_range(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per point: any feature outside the training range; excess in units of the training range."""
@@ -254,11 +269,13 @@ class SurrogateMaterial(MaterialPointSet):
         """[n, n_features, 6]: d(features)/d(trial strain), the chain rule through the history variables."""
         n = strain.shape[0]
         eye = torch.eye(6, dtype=strain.dtype).expand(n, 6, 6)
-        history = self.sigma_model.history
-        if not history:
-            return eye
-        d_history = history_jacobian_torch(strain, acc_c, strain_c, peak_c)[:, [HIST.index(h) for h in history], :]
-        return torch.cat([eye, d_history], dim=1)
+        history = strain_history(self.sigma_model.history)
+        parts = [eye]
+        if history:
+            parts.append(history_jacobian_torch(strain, acc_c, strain_c, peak_c)[:, [HIST.index(h) for h in history], :])
+        if self._pressure is not None:  # p0 does not move with the strain
+            parts.append(torch.zeros(n, 1, 6, dtype=strain.dtype))
+        return torch.cat(parts, dim=1) if len(parts) > 1 else eye
 
     def _stress_with_aux(self, strain, acc_c, strain_c, peak_c):
         """Reference path for the autodiff tangent (tests): torch.func.jacrev of this function."""

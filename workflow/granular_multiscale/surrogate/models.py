@@ -25,7 +25,8 @@ from torch import nn
 from .. import integrity
 from ..atomic import atomic_path
 from ..history import HIST, trial_history_torch
-from .dataset import STRAIN_FEATURES, feature_names, history_selection, target_names
+from .dataset import (HISTORY_FEATURES, STRAIN_FEATURES, feature_names, strain_history, takes_pressure,
+                      target_names)
 
 FORMAT = "granular_multiscale.surrogate/2"
 # format 1 held one network's weights under "state_dict"; format 2 a list under "members"
@@ -42,20 +43,37 @@ ACTIVATIONS = {
 
 
 def trial_features(strain: torch.Tensor, acc_c: torch.Tensor, strain_c: torch.Tensor, peak_c: torch.Tensor,
-                   history=True) -> torch.Tensor:
+                   history=True, pressure: torch.Tensor | None = None) -> torch.Tensor:
     """[..., 6] trial strain with the converged strain, Δε_acc and running maxima (ψ1, ψ2) of the
     last step -> network features.
 
     Δε_acc = Δε_acc,c + |ε − ε_c|, φ = φ(Δε_acc), ψ = max(ψ_c, ‖ε‖) (history module): differentiable
     in the trial strain, so the autodiff tangent and the Jacobian loss both see the chain rule
-    through the history variables. `history` selects them (see dataset.history_selection)."""
-    chosen = history_selection(history)
-    if not chosen:
-        return strain
-    values = trial_history_torch(strain, acc_c, strain_c, peak_c)
-    if chosen != HIST:
-        values = values[..., [HIST.index(h) for h in chosen]]
-    return torch.cat([strain, values], dim=-1)
+    through the history variables. `history` selects them (see dataset.history_selection);
+    `pressure` [...] is p0 of each point (Pa), needed when the selection holds p0."""
+    chosen = strain_history(history)
+    parts = [strain]
+    if chosen:
+        values = trial_history_torch(strain, acc_c, strain_c, peak_c)
+        parts.append(values if chosen == HIST else values[..., [HIST.index(h) for h in chosen]])
+    if takes_pressure(history):
+        if pressure is None:
+            raise ValueError("the networks take p0, the consolidation pressure: give it (Pa) per point")
+        parts.append(torch.broadcast_to(torch.as_tensor(pressure, dtype=strain.dtype), strain.shape[:-1])[..., None])
+    return torch.cat(parts, dim=-1) if len(parts) > 1 else strain
+
+
+def fresh_state_at(by_pressure: list[dict], pressure: float) -> dict:
+    """{features, targets} of the fresh state at `pressure`: linear in p0 between the recorded
+    pressures (``{pressure, features, targets}`` each), extrapolated from the nearest two beyond."""
+    states = sorted(by_pressure, key=lambda state: state["pressure"])
+    if len(states) == 1:
+        return states[0]
+    known = np.array([state["pressure"] for state in states])
+    upper = int(np.clip(np.searchsorted(known, pressure), 1, known.size - 1))
+    weight = (pressure - known[upper - 1]) / (known[upper] - known[upper - 1])
+    return {key: ((1.0 - weight) * np.asarray(states[upper - 1][key], dtype=float)
+                  + weight * np.asarray(states[upper][key], dtype=float)).tolist() for key in ("features", "targets")}
 
 
 class ModelFileError(ValueError):
@@ -309,6 +327,11 @@ class SurrogateModel:
         return bool(self.history)
 
     @property
+    def takes_pressure(self) -> bool:
+        """Whether p0, the consolidation pressure, is an input (then FEM–ML gives it the specimen's)."""
+        return takes_pressure(self.history)
+
+    @property
     def n_features(self) -> int:
         return len(self.feature_names)
 
@@ -324,7 +347,7 @@ class SurrogateModel:
         pressure = (self.config.get("specimen") or {}).get("confining_pressure")
         return None if pressure is None else float(pressure)
 
-    def initial_offset(self, per_member: bool = False) -> np.ndarray:
+    def initial_offset(self, per_member: bool = False, pressure: float | None = None) -> np.ndarray:
         """Targets minus the network's prediction at the fresh state (zero strain, zero history).
 
         Adding it to every prediction makes the model reproduce the initial state exactly (the
@@ -332,12 +355,23 @@ class SurrogateModel:
         error there; it is a constant, so it leaves every derivative unchanged.
 
         per_member: [K, n_targets], each member's own offset. Their mean is the ensemble's
-        offset, so the anchored ensemble is the mean of its anchored members."""
+        offset, so the anchored ensemble is the mean of its anchored members.
+
+        pressure: p0 (Pa) of networks that take it. Their training recorded the fresh state at
+        each pressure its RVEs were consolidated at (``initial_state["by_pressure"]``); the fresh
+        state at `pressure` is the linear interpolation of those (extrapolation from the nearest
+        two beyond them). The consolidated stress −p0·1 is linear in p0, so zero strain gives it
+        exactly at any pressure; the fresh tangent is interpolated."""
         if not self.initial_state:
             raise ValueError("this model file records no initial state (trained by an older version)")
-        x0 = np.asarray(self.initial_state["features"], dtype=float)[None, :]
+        state = self.initial_state
+        if self.takes_pressure:
+            if pressure is None or not np.isfinite(pressure):
+                raise ValueError("the networks take p0: the fresh state's offset needs the consolidation pressure (Pa)")
+            state = fresh_state_at(state["by_pressure"], float(pressure))
+        x0 = np.asarray(state["features"], dtype=float)[None, :]
         prediction = self.predict_members(x0)[:, 0] if per_member else self.predict(x0)[0]
-        return np.asarray(self.initial_state["targets"], dtype=float) - prediction
+        return np.asarray(state["targets"], dtype=float) - prediction
 
     def predict(self, x: np.ndarray) -> np.ndarray:
         """[n, n_features] raw features -> [n, n_targets] raw targets (numpy, no gradient)."""
@@ -395,9 +429,9 @@ class SurrogateModel:
             raise ModelFileError(f"{path}: not a surrogate model file (expected format {FORMAT})")
         names = tuple(payload.get("feature_names", ()))
         history = names[len(STRAIN_FEATURES):]
-        if names[: len(STRAIN_FEATURES)] != STRAIN_FEATURES or any(h not in HIST for h in history):
-            raise ModelFileError(f"{path}: inputs {list(names)} are not features this project computes "
-                                 f"(the six strains {list(STRAIN_FEATURES)}, then history variables from {list(HIST)})")
+        if names[: len(STRAIN_FEATURES)] != STRAIN_FEATURES or any(h not in HISTORY_FEATURES for h in history):
+            raise ModelFileError(f"{path}: inputs {list(names)} are not features this project computes (the six "
+                                 f"strains {list(STRAIN_FEATURES)}, then history variables from {list(HISTORY_FEATURES)})")
         arch = payload["architecture"]
         states = payload["members"] if payload["format"] == FORMAT else [payload["state_dict"]]
         members = [_load_member(path, k, arch, payload["scaling"], state, dtype) for k, state in enumerate(states)]

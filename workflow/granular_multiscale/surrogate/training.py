@@ -28,7 +28,8 @@ from ..atomic import atomic_path
 from ..history import accumulated_from_sequence, peak_from_sequence
 from ..novelty import TrainingStates, sample_states
 from ..tensors import ENGINEERING_FACTOR, tangent_from_upper, tensor_norm
-from .dataset import features, history_selection, sample_mask, sample_trajectories, scaling, target_names, targets
+from .dataset import (consolidation_pressures, features, history_selection, sample_mask, sample_trajectories, scaling,
+                      strain_history, takes_pressure, target_names, targets)
 from .models import EnsembleMLP, ScaledMLP, SurrogateModel, trial_features
 
 _KIND_INDEX = {"sigma": 0, "tangent": 1}
@@ -81,8 +82,10 @@ def _jacobian_data(ds: xr.Dataset, net, device) -> dict[str, torch.Tensor]:
     varies = (net.x_max[:6] - net.x_min[:6] > 0) & (net.x_scale[:6] != 1.0)
     keep = sample_mask(ds)  # padding and lost-contact entries are no samples
     flat = lambda a: torch.as_tensor(a.reshape(-1, *a.shape[2:])[keep], dtype=torch.float32, device=device)  # noqa: E731
+    # p0 per sample, read only by networks that take it (features() has checked it is known then)
+    pressure = ds["consolidation_pressure"].values if "consolidation_pressure" in ds else np.full(ds.sizes["gp"], np.nan)
     return {"strain": flat(strain), "strain_c": flat(strain_c), "acc_c": flat(acc_c), "peak_c": flat(peak_c),
-            "target": flat(jac_scaled),
+            "pressure": flat(np.broadcast_to(pressure, strain.shape[:2]).copy()), "target": flat(jac_scaled),
             "mask": varies.to(device=device, dtype=torch.float32), "x_scale": net.x_scale[:6].detach()}
 
 
@@ -94,7 +97,8 @@ def _directional_slopes(net, jac: dict, idx, history, generator):
     acc_c, strain_c, peak_c = jac["acc_c"][idx], jac["strain_c"][idx], jac["peak_c"][idx]
 
     def scaled_stress(strain):
-        return net.forward_scaled(net.scale_x(trial_features(strain, acc_c, strain_c, peak_c, history)))
+        return net.forward_scaled(net.scale_x(trial_features(strain, acc_c, strain_c, peak_c, history,
+                                                             jac["pressure"][idx])))
 
     prediction, slope = jvp(scaled_stress, (jac["strain"][idx],), (v * jac["x_scale"],))
     return prediction, slope, torch.einsum("bij,bj->bi", jac["target"][idx], v)
@@ -339,12 +343,21 @@ def _fit_together(nets: list, fit: _Fit, settings: dict, seeds: list[int], label
 
 
 def initial_state(ds: xr.Dataset, kind: str, history=True) -> dict:
-    """Mean features and targets of step 0 (the fresh, consolidated state) over the dataset's points."""
+    """Mean features and targets of step 0 (the fresh, consolidated state) over the dataset's points;
+    with p0 among the features, also per consolidation pressure (``by_pressure``, sorted by p0)."""
     fresh = ds.isel(step=[0])
-    return {
+    state = {
         "features": features(fresh, history).mean(axis=0).tolist(),
         "targets": targets(fresh, kind).mean(axis=0).tolist(),
     }
+    if takes_pressure(history):
+        pressures = consolidation_pressures(fresh)
+        state["by_pressure"] = [
+            {"pressure": float(p), **initial_state(fresh.isel(gp=np.flatnonzero(pressures == p)), kind, strain_history(history))}
+            for p in np.unique(pressures)]
+        for entry in state["by_pressure"]:  # the features at that pressure: p0 appended
+            entry["features"] = [*entry["features"], entry["pressure"]]
+    return state
 
 
 def heldout_spread_scale(model: SurrogateModel, heldout: xr.Dataset) -> dict:
