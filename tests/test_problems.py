@@ -469,13 +469,16 @@ def test_every_driver_runs_the_biaxial_test(tmp_path_factory, tmp_path):
     assert ml.attrs["problem"] == "biaxial" and ml.sizes == {**ml.sizes, "step": 4, "gp": 32}
     assert np.all(np.diff(ml.load_force.values) > 0)  # compression raises the platen force
     # networks of their own at the weak zone (here a copy of the specimen's, which these networks,
-    # trained in seconds, keep Newton stable beside): the same run bit for bit, the file recorded
+    # trained in seconds, keep Newton stable beside): the same run, the file recorded. To round-off,
+    # not bit for bit: the two zones' batches are other matrix sizes, which some BLAS builds sum in
+    # another order (measured: 1e-11 relative)
     shutil.copy(tmp_path / "sigma.pt", tmp_path / "weak_sigma.pt")
     zoned = run_fem_ml(config, "p", tmp_path / "sigma.pt", None, "autodiff", progress=False, problem="biaxial",
                        weak_zone_models={"sigma": tmp_path / "weak_sigma.pt", "tangent": None})
     assert zoned.attrs["surrogate_weak_zone_sigma_model"] == str(tmp_path / "weak_sigma.pt")
     for name in ("stress", "strain", "load_force", "stress_spread"):
-        assert np.array_equal(zoned[name].values, ml[name].values), name
+        np.testing.assert_allclose(zoned[name].values, ml[name].values, rtol=1e-9,
+                                   atol=1e-9 * np.abs(ml[name].values).max(), err_msg=name)
 
     packings = [str(strong)]
     dem = run_fem_dem(config, "p", packings, tmp_path / "dem.h5", None, 2, problem="biaxial", weak_packing=str(weak))
