@@ -207,6 +207,24 @@ def test_the_reference_newton_settings_are_those_the_fem_dem_runs_solve_with():
     assert plan.reference_newton["tolerance"] == 5e-4
 
 
+def test_a_study_variant_solved_like_the_reference_is_the_reference_run():
+    """The default study's tol2e-3 is dem.newton's own setting: the study reads fem_dem/path2.h5
+    rather than computing it again; with dem.newton at 5e-4 it is a run of its own again."""
+    plan = plan_of("config.yaml")
+    runs = {v: plan.study_run(v) for v in plan.config["tolerance_study"]["variants"]}
+    assert runs.pop("tol2e-3") == "out/fem_dem/path2.h5"
+    assert runs == {v: f"out/tolerance_study/{v}/path2.h5" for v in runs}
+    stricter = plan_of("config.yaml", dem={"newton": {"tolerance": 5e-4}})
+    assert stricter.study_run("tol2e-3") == "out/tolerance_study/tol2e-3/path2.h5"
+    # the settings compared are those the run solves with: a variant's unnamed keys take the
+    # schema's defaults (max_iterations 40), not dem.newton's (30)
+    study = {"variants": {"a": {"tolerance": 2e-3, "predictor": "extrapolate", "max_iterations": 30},
+                          "b": {"tolerance": 2e-3}}, "converged": "a", "baseline": "b"}
+    plan = plan_of("config.yaml", tolerance_study=study)
+    assert plan.study_run("a") == "out/fem_dem/path2.h5"
+    assert plan.study_run("b") == "out/tolerance_study/b/path2.h5"
+
+
 @pytest.mark.parametrize("scale", ["config.yaml", "tiny.yaml"])
 @pytest.mark.parametrize("test", ["triaxial", "biaxial"])
 def test_the_element_tests_configs_validate_as_their_rule_validates_them(scale, test):

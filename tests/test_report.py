@@ -284,6 +284,8 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
         assert f"volumetric strain within {study.loc['default', 'volumetric_strain_max_pct']:.2f} %" in own
         assert "variant default against a run to 0.0005" in own
         assert "tolerance_study.png" in html and "5 Reference" in html
+        # the variant solved like the reference is the reference run, not a second one
+        assert not Path(L.tolerance_run("default", "path2")).exists() and Path(L.tolerance_run("tight", "path2")).exists()
     else:
         assert "Its own error is not measured by this workflow" in page
         assert not any(entry["name"] == "reference_convergence.html" for entry in results.values())

@@ -309,6 +309,16 @@ class Plan:
         study = self.config["tolerance_study"]
         return {**self.run_definition, "newton": {**self.config["dem"]["newton"], **study["variants"][variant]}}
 
+    def study_run(self, variant: str) -> str:
+        """The FEM–DEM run of a tolerance-study variant on the study's path. A variant that solves
+        exactly like the specimen's FEM–DEM runs (the same Newton settings once merged) is the
+        reference run itself: the same computation, not made twice."""
+        path = self.config["tolerance_study"]["path"]
+        variant_config = {**self.config, "dem": {**self.config["dem"], "newton": self.study_dem(variant)["newton"]}}
+        if dem_newton_config(variant_config)["newton"] == dem_newton_config(self.config)["newton"]:
+            return self.layout.run("fem_dem", path)
+        return self.layout.tolerance_run(variant, path)
+
     def problem_definition(self, problem: str) -> dict:
         """What a run of `problem` depends on: its section, the confinement, Newton and the material's settings."""
         c = self.config
