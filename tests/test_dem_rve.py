@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -45,11 +46,16 @@ O.cell.velGrad = Matrix3(-20, 0, 0, 0, -20, 0, 0, 0, -20)   # shrink the cell un
 for _ in range(400):
     O.step()
 s = utils.getStress()
+import os
+temp_dir = os.path.dirname(O.tmpFilename())
 print(json.dumps({"iter": O.iter, "n": len(O.bodies), "threads": O.numThreads, "contacts": O.interactions.countReal(),
-                  "stress": [s[i, i] for i in range(3)], "periodic": O.periodic}))
+                  "stress": [s[i, i] for i in range(3)], "periodic": O.periodic, "temp_dir": temp_dir,
+                  "temp_dir_made": os.path.isdir(temp_dir)}))
 """)
     assert result["iter"] == 400 and result["n"] == 60 and result["threads"] == 1 and result["periodic"]
     assert result["contacts"] > 0
+    # YADE's /tmp/yade-XXXXXX folder goes with the process that imported it
+    assert result["temp_dir_made"] and not Path(result["temp_dir"]).exists(), result["temp_dir"]
     assert np.all(np.isfinite(result["stress"])) and np.all(np.array(result["stress"]) < 0)  # compressed: tension-positive stress < 0
 
 

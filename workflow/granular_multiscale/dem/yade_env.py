@@ -9,7 +9,9 @@ kind ``fork`` copies faithfully).
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import subprocess
 import sys
 
@@ -39,7 +41,23 @@ def import_yade():
         raise RuntimeError(
             f"YADE runs with {omega.numThreads} threads; set OMP_NUM_THREADS=1 before importing it"
         )
+    _remove_at_exit(os.path.dirname(omega.tmpFilename()))
     return omega
+
+
+def _remove_at_exit(yade_temp_dir: str) -> None:
+    """YADE makes a /tmp/yade-XXXXXX folder when imported and removes it only when its own launcher
+    exits, never when a Python process imported it: every RVE host of every run would leave one.
+    The process that imported YADE removes it when it exits; its forked children share the folder
+    and leave it to it (they end with os._exit, which runs no exit handler; the pid check covers
+    one that would not)."""
+    owner = os.getpid()
+
+    def remove():
+        if os.getpid() == owner:
+            shutil.rmtree(yade_temp_dir, ignore_errors=True)
+
+    atexit.register(remove)
 
 
 def run_module(module: str, args: list[str], timeout: float | None = None) -> subprocess.CompletedProcess:
