@@ -255,7 +255,9 @@ def test_a_resumed_run_counts_the_time_of_the_steps_before_its_checkpoint(tmp_pa
     assert before > 0.3 * steps.sum()  # the checkpoint holds a good share of the run
     # the run's time is that of all its load steps, not only of those after the resume
     assert resumed.attrs["time_run_s"] >= steps.sum()
-    assert resumed.attrs["time_run_s"] == pytest.approx(full.attrs["time_run_s"], rel=0.5)
+    # every evaluation, before the checkpoint or after it, sleeps 5 ms: a floor that holds on a
+    # loaded machine too (against the full run's wall time, the ratio varies with the load)
+    assert resumed.attrs["time_run_s"] >= 0.005 * full.attrs["total_material_evaluations"]
     assert resumed.attrs["time_resume_s"] >= 0 and full.attrs["time_resume_s"] == 0
     for key in ("total_newton_corrections", "total_material_evaluations", "total_tangent_evaluations"):
         assert resumed.attrs[key] == full.attrs[key], key
