@@ -29,6 +29,7 @@ def test_yade_steps_a_periodic_packing_in_the_venv():
     """YADE imports in this venv, steps a small periodic packing, and reads its stress."""
     result = _yade("""
 import json
+import os
 from granular_multiscale.dem.yade_env import import_yade
 O = import_yade()
 from yade import pack, utils
@@ -46,7 +47,6 @@ O.cell.velGrad = Matrix3(-20, 0, 0, 0, -20, 0, 0, 0, -20)   # shrink the cell un
 for _ in range(400):
     O.step()
 s = utils.getStress()
-import os
 temp_dir = os.path.dirname(O.tmpFilename())
 print(json.dumps({"iter": O.iter, "n": len(O.bodies), "threads": O.numThreads, "contacts": O.interactions.countReal(),
                   "stress": [s[i, i] for i in range(3)], "periodic": O.periodic, "temp_dir": temp_dir,

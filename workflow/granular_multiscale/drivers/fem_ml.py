@@ -140,8 +140,7 @@ def at_specimen_pressure(material: SurrogateMaterial, pressure: float, other_pre
     if other_pressure not in OTHER_PRESSURE:
         raise ValueError(f"config key 'surrogate.other_pressure' must be one of {OTHER_PRESSURE}, got {other_pressure!r}")
     if material.sigma_model.takes_pressure:
-        if material.consolidation_pressure != pressure:  # surrogate_material has set it already
-            material.set_consolidation_pressure(pressure)
+        material.set_consolidation_pressure(pressure)
         logger.info("networks that take the consolidation pressure p0: %g Pa, the specimen's", pressure)
         return material
     trained = material.sigma_model.training_pressure
