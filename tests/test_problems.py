@@ -370,10 +370,9 @@ def test_biaxial_with_yade_rves_forms_a_band(tmp_path_factory, tmp_path):
     "Body larger than half of the cell size"), and its stress scatters from one trial to the next
     by a few per cent, so Newton at the default 2e-2 needs 20+ iterations a step past the peak.
     The frictionless weak zone localises earlier (measured at 2.5 /s: ratio 2.3 at 7 %, onset near 6 %;
-    with μ 0.2 the ratio is 1.2 at 7 %), and 5e-2 matches the small RVE's scatter. At 5 /s (measured
-    on 2 cores of AMD EPYC: ratio 2.17, onset 6.2 %, at most 7 Newton iterations a step) it takes
-    3 minutes there; at 2.5 /s Newton stalled on that scatter past the peak (10 to 19 iterations
-    and a cutback a step) and took 8."""
+    with μ 0.2 the ratio is 1.2 at 7 %), and 5e-2 matches the small RVE's scatter. At 5 /s
+    Newton takes a few iterations a step past the peak; at 2.5 /s it stalled there on that scatter,
+    at 2.5 times the cost (docs/history.md, "A CPU 2.6 times slower than the `all` record's")."""
     strong, _ = packing(tmp_path_factory)
     weak, _ = packing(tmp_path_factory, friction=0.0)
     from granular_multiscale.drivers.fem_dem import run_fem_dem

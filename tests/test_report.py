@@ -153,10 +153,10 @@ def test_tiny_pipeline_builds_the_report(tmp_path, reference):
     out = tmp_path / "tiny"
     override = tmp_path / "override.yaml"
     settings = {"output_dir": str(out), "reference_material": reference}  # training epochs as config/tiny.yaml sets them
-    if reference == "dem":  # (the problems with YADE RVEs: tests/test_problems.py)
-        settings["problems"] = []
+    if reference == "dem":
+        settings["problems"] = []  # (the problems with YADE RVEs: tests/test_problems.py)
         settings["dem"] = {"strain_rate": 5.0}  # the default scale's rate: half the DEM steps of tiny.yaml's 2.5
-    if reference == "dem":  # the reference's own error in "0 Headline": a two-variant tolerance study
+        # the reference's own error in "0 Headline": a two-variant tolerance study
         settings["tolerance_study"] = {"converged": "tight", "baseline": "default", "variants": {
             "default": {"tolerance": 2.0e-3, "max_iterations": 30}, "tight": {"tolerance": 5.0e-4}}}
     override.write_text(yaml.safe_dump(settings))
