@@ -1,16 +1,25 @@
 """What the test modules share: the `needs_yade` marker (skipped, with the reason, where YADE
-cannot be imported), the package's logging restored after each test, and a material-point set
-that simulates a killed run."""
+cannot be imported), the longest modules first on the workers of `pytest -n`, the package's logging
+restored after each test, a material-point set that simulates a killed run, and the tiny
+elastoplastic chain built once for the tests that read it."""
 
 from __future__ import annotations
 
 import functools
 import logging
+import os
 import sys
 
 import pytest
+from filelock import FileLock
 
 from granular_multiscale.dem.check_yade import yade_version
+
+#: the modules that take longest, longest first (2 to 6 minutes each here): `pytest -n` (pyproject.toml:
+#: --dist loadscope --no-loadscope-reorder) deals whole modules to its workers in the order they are
+#: collected, so these go first and the short ones fill the gaps
+LONGEST_MODULES = ("test_report", "test_problems", "test_faults", "test_adaptive", "test_dem_run",
+                   "test_rve_procedure")
 
 
 @functools.cache
@@ -24,6 +33,9 @@ def yade_missing() -> str | None:
 
 
 def pytest_collection_modifyitems(config, items):
+    if "PYTEST_XDIST_WORKER" in os.environ:  # `pytest -n`: the longest modules first
+        rank = {name: k for k, name in enumerate(LONGEST_MODULES)}
+        items.sort(key=lambda item: rank.get(item.module.__name__, len(rank)))
     needing = [item for item in items if item.get_closest_marker("needs_yade")]
     if needing and (reason := yade_missing()):
         for item in needing:
@@ -41,6 +53,28 @@ def _package_logging_restored():
     logger.handlers[:] = handlers
     logger.setLevel(level)
     sys.excepthook = hook
+
+
+@pytest.fixture(scope="session")
+def elastoplastic_chain(tmp_path_factory):
+    """config/tiny.yaml's chain on the analytic elastoplastic reference with NNσ and ND as ensembles
+    of two (the ensemble's path through the rules), its report built in the same call
+    (--report-after-run: the headline page is the one this run has just written), and the
+    surrogate stage's metric tables. Built once for the session, whichever worker asks first:
+    test_report.py reads its report, test_surrogate_pipeline.py its surrogate stage."""
+    from dem_fixtures import session_folder
+    from tiny_chain import TinyChain, snakemake
+
+    folder = session_folder(tmp_path_factory, "elastoplastic_chain")
+    with FileLock(f"{folder}.lock"):
+        chain = TinyChain.at(folder, "elastoplastic", surrogate={"ensemble_size": 2})
+        built = folder / "built"
+        if not built.exists():
+            metrics = chain.plan.layout.table("fem_ml_curve_errors.csv")
+            snakemake("-j2", *chain.config_args, "--report", str(chain.report), "--report-after-run", "--",
+                      *chain.targets, metrics)
+            built.touch()
+    return chain
 
 
 class KilledAfterCommits:

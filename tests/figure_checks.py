@@ -120,13 +120,22 @@ def check_fields(drawn: dict, reference, surrogate, quantity: str, steps) -> Non
 
 
 def check_training_curves(drawn: dict, curve_files: dict) -> None:
-    """Per 'panel|series' loss table: its training and held-out loss per epoch, in its panel."""
+    """Per 'panel|series' loss table: its training and held-out loss per epoch, in its panel; an
+    ensemble's table (a column member) a pair of curves per member, labelled with their count."""
+    pairs = 0
     for key, path in curve_files.items():
         panel, _, series = key.partition("|")
         table = pd.read_csv(path)
-        for line, column in (("training", "train_loss"), ("held out", "heldout_loss")):
-            assert_curve(drawn[panel][f"{line} ({series})"], table["epoch"], table[column], f"{key} {line}")
-    assert sum(len(curves) for curves in drawn.values()) == 2 * len(curve_files)
+        members = list(table.groupby("member")) if "member" in table else [(None, table)]
+        if len(members) > 1:
+            series = f"{series}, {len(members)} members" if series else f"{len(members)} members"
+        for member, rows in members:
+            for line, column in (("training", "train_loss"), ("held out", "heldout_loss")):
+                name = f"{line} ({series})" if series else line
+                name += "" if len(members) == 1 else f", member {member}"
+                assert_curve(drawn[panel][name], rows["epoch"], rows[column], f"{key} {name}")
+            pairs += 1
+    assert sum(len(curves) for curves in drawn.values()) == 2 * pairs
 
 
 def check_speed_vs_error(drawn: dict, speedup_csv, accuracy_csv) -> None:

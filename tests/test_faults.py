@@ -133,7 +133,7 @@ def test_a_second_workflow_on_one_output_directory_stops(tmp_path):
     before any job, naming the first (pid, host, start); once the first is done, the second
     finds nothing to do."""
     out, options = elastoplastic_chain(tmp_path)
-    target = Layout(out).fem_ml("path2")
+    target = Layout(out).model("sigma")  # four jobs after the lock is taken: about 20 s here with -j1
     first = subprocess.Popen([*SNAKEMAKE, "-j1", *options, "--", str(target)], cwd=ROOT, stdout=subprocess.DEVNULL,
                              stderr=subprocess.PIPE, text=True)
     lock = output_lock.lock_file(out)

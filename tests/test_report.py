@@ -16,49 +16,12 @@ import numpy as np
 import pandas as pd
 import pytest
 import xarray as xr
-import yaml
 from PIL import Image
 
 import figure_checks as check
-from granular_multiscale.config import load_config
 from granular_multiscale.data import read_run
-from granular_multiscale.plan import FIELD_QUANTITIES, Plan, path_label
-
-ROOT = Path(__file__).resolve().parents[1]
-SNAKEMAKE = [sys.executable, "-m", "snakemake"]
-
-FIGURES = [
-    "error_map.png",
-    "stress_strain_corner.png",
-    "stress_strain_centre.png",
-    "stress_strain_surface.png",
-    "top_force_volumetric_strain.png",
-    "fields_axial_displacement.png",
-    "fields_shear_strain.png",
-    "fields_sigma23.png",
-    "training_curves.png",
-    "speed_vs_error.png",
-    "calibration.png",
-]
-TABLES = ["speedup.csv", "speedup.html", "accuracy.csv", "accuracy.html", "surrogate_cost.csv", "surrogate_cost.html",
-          "calibration.csv", "calibration.html", "validation_by_phase.csv", "validation_by_phase.html"]
-
-
-def problem_products(L):
-    """The figures and tables of the problems beyond the triaxial specimen, and their VTK folders."""
-    items = [L.figure("biaxial/response.png"), L.figure("biaxial/fields_biaxial.png"), L.figure("footing/response.png"),
-             L.figure("footing/fields_footing.png"), L.table("biaxial_bands.csv"), L.table("footing.csv"),
-             L.table("rve_angles.csv"), L.table("visited_states.csv")]
-    for p in ("biaxial", "footing"):
-        items += [L.table(f"{p}/surrogate_{p}.csv"), L.figure(f"{p}/surrogate_response_{p}.png"),
-                  L.figure(f"{p}/error_map_{p}.png")]
-    return items, [L.vtk("biaxial", "biaxial"), L.vtk("footing", "footing")]
-
-
-def snakemake(*args, cwd=ROOT):
-    result = subprocess.run([*SNAKEMAKE, *args], cwd=cwd, capture_output=True, text=True)
-    assert result.returncode == 0, f"snakemake {' '.join(args)} failed:\n{result.stdout[-3000:]}\n{result.stderr[-6000:]}"
-    return result
+from granular_multiscale.plan import FIELD_QUANTITIES, path_label
+from tiny_chain import FIGURES, ROOT, TABLES, TinyChain, problem_products, snakemake
 
 
 def plain(html_text):
@@ -136,47 +99,37 @@ def check_figures(plan, again: Path) -> None:
     check.check_speed_vs_error(drawn, speedup, accuracy)
 
     _, drawn = calibration.make_calibration(files[ml], files[ref], again / "calibration.png", again / "calibration.csv",
-                                            again / "calibration.html", settings, **labels)
+                                            again / "calibration.html", settings, **labels,
+                                            spread_scales=calibration.read_spread_scales(L.table("spread_scale.csv")))
     same("calibration.png", "line")
     check.check_calibration(drawn, runs[ml], runs[ref])
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("reference", ["elastoplastic", pytest.param("dem", marks=pytest.mark.needs_yade)])
-def test_tiny_pipeline_builds_the_report(tmp_path, reference):
-    """The elastoplastic chain builds its report in the same call (--report-after-run: the headline
-    page is the one this run has just written), the DEM chain with a second call (--report), with
-    the tolerance study's page of the reference's own error. Either way a dry run afterwards has
+def test_tiny_pipeline_builds_the_report(request, tmp_path, reference):
+    """The elastoplastic chain builds its report in the same call (--report-after-run, in the
+    session's fixture, tests/conftest.py), the DEM chain with a second call (--report), with the
+    tolerance study's page of the reference's own error. Either way a dry run afterwards has
     nothing to do."""
     from granular_multiscale.analysis import tables
 
-    out = tmp_path / "tiny"
-    override = tmp_path / "override.yaml"
-    settings = {"output_dir": str(out), "reference_material": reference}  # training epochs as config/tiny.yaml sets them
-    if reference == "dem":
-        settings["problems"] = []  # (the problems with YADE RVEs: tests/test_problems.py)
-        settings["dem"] = {"strain_rate": 5.0}  # the default scale's rate: half the DEM steps of tiny.yaml's 2.5
-        # the reference's own error in "0 Headline": a two-variant tolerance study
-        settings["tolerance_study"] = {"converged": "tight", "baseline": "default", "variants": {
-            "default": {"tolerance": 2.0e-3, "max_iterations": 30}, "tight": {"tolerance": 5.0e-4}}}
-    override.write_text(yaml.safe_dump(settings))
-    config_args = ["--configfile", "config/tiny.yaml", str(override)]
-    plan = Plan(load_config([ROOT / "config/tiny.yaml", override]))  # merged as Snakemake merges them
+    if reference == "elastoplastic":  # with the problems beyond the triaxial specimen, as `all` makes them
+        chain = request.getfixturevalue("elastoplastic_chain")
+    else:  # training epochs as config/tiny.yaml sets them
+        chain = TinyChain.at(
+            tmp_path, reference,
+            problems=[],  # (the problems with YADE RVEs: tests/test_problems.py)
+            dem={"strain_rate": 5.0},  # the default scale's rate: half the DEM steps of tiny.yaml's 2.5
+            # the reference's own error in "0 Headline": a two-variant tolerance study
+            tolerance_study={"converged": "tight", "baseline": "default", "variants": {
+                "default": {"tolerance": 2.0e-3, "max_iterations": 30}, "tight": {"tolerance": 5.0e-4}}})
+        snakemake("-j2", *chain.config_args, "--", *chain.targets, "tolerance_study")
+        snakemake("--report", str(chain.report), *chain.config_args, "--", "all", "tolerance_study")
+    plan, out, report = chain.plan, chain.out, chain.report
     L = plan.layout
-    # what the report needs (rule all adds the FEM–ML runs of the training path and the
-    # surrogate stage's own metric tables, which its tests cover)
-    targets = [L.figure(name) for name in FIGURES] + [L.table(name) for name in TABLES]
-    targets += [L.table("headline.json"), L.vtk("reference", "path2"), L.vtk("fem_ml", "path2")]
-    problem_items, problem_vtk = problem_products(L)
-    if reference == "elastoplastic":  # the problems beyond the triaxial specimen, as `all` makes them
-        targets += problem_items + problem_vtk
-    report = out / "report.html"
-    if reference == "elastoplastic":
-        snakemake("-j2", *config_args, "--report", str(report), "--report-after-run", "--", *targets)
-    else:
-        snakemake("-j2", *config_args, "--", *targets, "tolerance_study")
-        snakemake("--report", str(report), *config_args, "--", "all", "tolerance_study")
-    again = snakemake("-n", "-j2", *config_args, "--", *targets)
+    problem_items, _ = problem_products(L)
+    again = snakemake("-n", "-j2", *chain.config_args, "--", *chain.targets)
     assert "Nothing to be done" in again.stdout + again.stderr, (again.stdout + again.stderr)[-3000:]
     check_figures(plan, tmp_path / "again")
     for name in TABLES:  # every table has rows of finite numbers

@@ -1,7 +1,5 @@
 """The chain dataset -> training -> FEM–ML -> metrics from Snakemake, tiny scale, elastoplastic reference."""
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,8 +10,6 @@ from granular_multiscale.data import read_run, run_config, run_tangent
 from granular_multiscale.plan import Layout
 from granular_multiscale.surrogate.dataset import read_dataset, split_of
 from granular_multiscale.surrogate.models import SurrogateModel
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def recount_out_of_range(run, model):
@@ -39,16 +35,9 @@ def recount_out_of_range(run, model):
 
 
 @pytest.fixture(scope="module")
-def tiny_chain(tmp_path_factory):
-    out = tmp_path_factory.mktemp("surrogate") / "tiny"
-    targets = [Layout(out).table("fem_ml_curve_errors.csv")]
-    # NNσ and ND as ensembles of two: the ensemble path through the rules, model files and figures
-    cmd = [sys.executable, "-m", "snakemake", "-j2", "--configfile", "config/tiny.yaml",
-           "--config", "reference_material=elastoplastic", f"output_dir={out}", "surrogate={ensemble_size: 2}",
-           "--", *targets]
-    result = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
-    assert result.returncode == 0, result.stderr[-4000:]
-    return out
+def tiny_chain(elastoplastic_chain):
+    """The report's tiny elastoplastic chain (tests/conftest.py: NNσ and ND as ensembles of two)."""
+    return elastoplastic_chain.out
 
 
 @pytest.mark.slow
