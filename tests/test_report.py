@@ -19,9 +19,10 @@ import xarray as xr
 from PIL import Image
 
 import figure_checks as check
+from dem_fixtures import ROOT
 from granular_multiscale.data import read_run
 from granular_multiscale.plan import FIELD_QUANTITIES, path_label
-from tiny_chain import FIGURES, ROOT, TABLES, TinyChain, problem_products, snakemake
+from tiny_chain import FIGURES, TABLES, TinyChain, problem_products, snakemake
 
 
 def plain(html_text):
@@ -115,7 +116,7 @@ def test_tiny_pipeline_builds_the_report(request, tmp_path, reference):
     from granular_multiscale.analysis import tables
 
     if reference == "elastoplastic":  # with the problems beyond the triaxial specimen, as `all` makes them
-        chain = request.getfixturevalue("elastoplastic_chain")
+        chain = request.getfixturevalue("tiny_elastoplastic_chain")
     else:  # training epochs as config/tiny.yaml sets them
         chain = TinyChain.at(
             tmp_path, reference,

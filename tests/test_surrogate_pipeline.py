@@ -34,15 +34,10 @@ def recount_out_of_range(run, model):
     return (excess > 0).any(axis=-1).sum(axis=1), excess.max(axis=(1, 2)), excess
 
 
-@pytest.fixture(scope="module")
-def tiny_chain(elastoplastic_chain):
-    """The report's tiny elastoplastic chain (tests/conftest.py: NNσ and ND as ensembles of two)."""
-    return elastoplastic_chain.out
-
-
 @pytest.mark.slow
-def test_dataset_and_models(tiny_chain, tmp_path):
-    L = Layout(tiny_chain)
+def test_dataset_and_models(tiny_elastoplastic_chain, tmp_path):
+    """The dataset and the networks (ensembles of two) of the chain the report test reads too."""
+    L = Layout(tiny_elastoplastic_chain.out)
     train, heldout = read_dataset(L.dataset("train")), read_dataset(L.dataset("heldout"))
     # training sources (config/tiny.yaml): path1's reference run and the 8 RVE paths of the tiny set,
     # held out by trajectory class. On the 1×1×2 mesh with the elastoplastic model the 16 points form
@@ -90,8 +85,8 @@ def test_dataset_and_models(tiny_chain, tmp_path):
 
 
 @pytest.mark.slow
-def test_fem_ml_runs_and_metrics(tiny_chain):
-    L = Layout(tiny_chain)
+def test_fem_ml_runs_and_metrics(tiny_elastoplastic_chain):
+    L = Layout(tiny_elastoplastic_chain.out)
     reference = read_run(L.run("fem_elastoplastic", "path2"))
     ml = read_run(L.fem_ml("path2"))
     nohist = read_run(L.run("fem_ml_nohist", "path2"))

@@ -9,11 +9,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
+from dem_fixtures import ROOT
 
 from granular_multiscale.config import load_config
 from granular_multiscale.plan import Plan
 
-ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 
 FIGURES = [
