@@ -32,6 +32,7 @@ from granular_multiscale.fem import make_problem
 from granular_multiscale.plan import WEAK_ZONE_ROUND, Plan
 from granular_multiscale.surrogate.dataset import build_dataset_from_sources
 from granular_multiscale.surrogate.material import SurrogateMaterial
+from granular_multiscale.surrogate.synthetic import material_point_run
 from granular_multiscale.surrogate.training import train
 
 from common import bench_parser, require_files, run_folder
@@ -41,11 +42,7 @@ def driven_stress(model_file, strain: np.ndarray) -> np.ndarray:
     """[steps, points, 6] the networks' stress along the strain histories [steps, points, 6], each
     step committed as converged (no FEM)."""
     material = SurrogateMaterial.from_files(strain.shape[1], model_file, tangent="autodiff")
-    stress = np.empty_like(strain)
-    for step in range(strain.shape[0]):
-        stress[step], _ = material.evaluate(strain[step], need_tangent=False)
-        material.commit()
-    return stress
+    return material_point_run(material, strain)["stress"].values
 
 
 def main(argv=None) -> list[dict]:
