@@ -2,7 +2,7 @@
 
 FEM–ML's band forms where the weak zone's networks put it, so their error moves the force up to the
 peak. For the weak zone's training sources of the config (``surrogate.weak_zone_sources``) and
-for the same plus ``--extra-sets`` (RVE-path sets of the weak packing), and for each training seed
+for the same plus each ``--extra-sets`` (RVE-path sets of the weak packing), and for each training seed
 (the config's seed plus each ``--seeds`` offset): the weak zone's NNσ trained on them (its ND is the
 pipeline's, unused with the autodiff tangent), the held-out MAE of σ33 on that training's own split,
 the networks driven along the FEM–DEM strain histories of the weak zone's points (no FEM: the
@@ -11,8 +11,10 @@ reference's peak and after it; the specimen's networks at the other points besid
 columns of the problems' surrogate tables). The specimen's networks are the pipeline's throughout.
 
     .venv/bin/snakemake -j2 all
-    .venv/bin/snakemake -j2 --configfile config/config.yaml config/weak_zone_more.yaml -- results/rve_paths/band_weak_more.h5
-    .venv/bin/python bench/bench_weak_zone.py --extra-sets band_weak_more --seeds 0 1 2
+    .venv/bin/snakemake -j2 --configfile config/config.yaml config/weak_zone_more.yaml -- \
+        results/rve_paths/band_weak_more.h5 results/rve_paths/band_weak_other.h5 results/rve_paths/band_weak_cycles.h5
+    .venv/bin/python bench/bench_weak_zone.py --seeds 0 1 2 --extra-sets band_weak_more \
+        --extra-sets band_weak_other --extra-sets band_weak_cycles
 
 Each training and its FEM–ML run are kept under weak_zone_runs/ beside the record and reused when they
 exist (delete to rerun)."""
@@ -47,8 +49,9 @@ def driven_stress(model_file, strain: np.ndarray) -> np.ndarray:
 
 def main(argv=None) -> list[dict]:
     parser = bench_parser("weak_zone", __doc__)
-    parser.add_argument("--extra-sets", nargs="+", default=[], metavar="SET",
-                        help="RVE-path sets of the weak packing added to the weak zone's sources in a second variant")
+    parser.add_argument("--extra-sets", nargs="+", action="append", default=[], metavar="SET",
+                        help="RVE-path sets of the weak packing added to the weak zone's sources: one more variant "
+                             "each time the option is given")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0], help="training seeds: offsets to the config's seed")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
@@ -61,9 +64,9 @@ def main(argv=None) -> list[dict]:
                          "test and the weak zone's networks")
     case = plan.problem_cases["biaxial"][0]
     reference_file = plan.problem_run("biaxial", case)
-    variants = [list(plan.weak_zone_sets)] + ([[*plan.weak_zone_sets, *args.extra_sets]] if args.extra_sets else [])
+    variants = [list(plan.weak_zone_sets)] + [[*plan.weak_zone_sets, *extra] for extra in args.extra_sets]
     require_files(reference_file, L.model("sigma"), L.model("tangent"), L.model("tangent", WEAK_ZONE_ROUND),
-                  *(L.rve_paths(name) for name in variants[-1]),
+                  *(L.rve_paths(name) for sets in variants for name in sets),
                   hint="run the pipeline (`snakemake -j2 all`) and make the extra sets first (see the docstring)")
     reference = read_run(reference_file)
     weak = make_problem(config, "biaxial").zones() == 1
