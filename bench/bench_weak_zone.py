@@ -1,14 +1,17 @@
 """The biaxial test's weak zone: its networks trained on more RVE-path data, over several seeds.
 
 FEM–ML's band forms where the weak zone's networks put it, so their error moves the force up to the
-peak. For the weak zone's training sources of the config (``surrogate.weak_zone_sources``) and
-for the same plus each ``--extra-sets`` (RVE-path sets of the weak packing), and for each training seed
-(the config's seed plus each ``--seeds`` offset): the weak zone's NNσ trained on them (its ND is the
-pipeline's, unused with the autodiff tangent), the held-out MAE of σ33 on that training's own split,
-the networks driven along the FEM–DEM strain histories of the weak zone's points (no FEM: the
-material error alone; ‖σ − σ_ref‖ / p0, median over the points and the steps up to the
-reference's peak and after it; the specimen's networks at the other points beside them), and FEM–ML on the biaxial test with them against FEM–DEM (the
-columns of the problems' surrogate tables). The specimen's networks are the pipeline's throughout.
+peak. For the weak zone's training sources of the config (``surrogate.weak_zone_sources``), for
+the same plus each ``--extra-sets`` (RVE-path sets of the weak packing), and for each training
+seed (the config's seed plus each ``--seeds`` offset):
+
+* the weak zone's NNσ trained on them (its ND is the pipeline's, unused with the autodiff tangent)
+  and its held-out MAE of σ33 on that training's own split;
+* the networks driven along the FEM–DEM strain histories of the weak zone's points (no FEM: the
+  material error alone), ‖σ − σ_ref‖ / p0, median over the points and the steps up to the
+  reference's peak and after it; the specimen's networks at the other points beside them;
+* FEM–ML on the biaxial test with them against FEM–DEM (the columns of the problems' surrogate
+  tables). The specimen's networks are the pipeline's throughout.
 
     .venv/bin/snakemake -j2 all
     .venv/bin/snakemake -j2 --configfile config/config.yaml config/weak_zone_more.yaml -- \
