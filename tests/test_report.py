@@ -127,7 +127,7 @@ def test_tiny_pipeline_builds_the_report(request, tmp_path, reference):
                 "default": {"tolerance": 2.0e-3, "max_iterations": 30}, "tight": {"tolerance": 5.0e-4}}})
         snakemake("-j2", *chain.config_args, "--", *chain.targets, "tolerance_study")
         snakemake("--report", str(chain.report), *chain.config_args, "--", "all", "tolerance_study")
-    plan, out, report = chain.plan, chain.out, chain.report
+    plan, report = chain.plan, chain.report
     L = plan.layout
     problem_items, _ = problem_products(L)
     again = snakemake("-n", "-j2", *chain.config_args, "--", *chain.targets)
