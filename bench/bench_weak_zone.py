@@ -15,9 +15,9 @@ seed (the config's seed plus each ``--seeds`` offset):
 
     .venv/bin/snakemake -j2 all
     .venv/bin/snakemake -j2 --configfile config/config.yaml config/weak_zone_more.yaml -- \
-        results/rve_paths/band_weak_more.h5 results/rve_paths/band_weak_other.h5 results/rve_paths/band_weak_cycles.h5
+        results/rve_paths/band_weak_more.h5 results/rve_paths/band_weak_other.h5
     .venv/bin/python bench/bench_weak_zone.py --seeds 0 1 2 --extra-sets band_weak_more \
-        --extra-sets band_weak_other --extra-sets band_weak_cycles
+        --extra-sets band_weak_other
 
 Each training and its FEM–ML run are kept under weak_zone_runs/ beside the record and reused when they
 exist (delete to rerun)."""

@@ -59,10 +59,13 @@ def test_the_default_scale_trains_on_path1_and_rve_paths_and_validates_on_path2(
     active_sources, active_networks = plan.training_rounds()["active/"]
     assert active_sources[:-1] == sources and active_sources[-1:] == ["out/adaptive/t0.01/dem_points/path2.h5"]
     assert list(active_networks) == ["sigma", "tangent"]
-    # the weak zone's networks: the set band_weak drives the weak packing; FEM–ML's biaxial test reads them
+    # the weak zone's networks: the sets band_weak and band_weak_cycles drive the weak packing;
+    # FEM–ML's biaxial test reads them
     weak_sources, weak_networks = plan.training_rounds()["weak_zone/"]
-    assert weak_sources == ["out/rve_paths/band_weak.h5"] and list(weak_networks) == ["sigma", "tangent"]
-    assert plan.rve_path_packings("band_weak") == ["out/rve/packing_weak.yade.gz"]
+    assert weak_sources == ["out/rve_paths/band_weak.h5", "out/rve_paths/band_weak_cycles.h5"]
+    assert list(weak_networks) == ["sigma", "tangent"]
+    for weak_set in ("band_weak", "band_weak_cycles"):
+        assert plan.rve_path_packings(weak_set) == ["out/rve/packing_weak.yade.gz"]
     assert plan.rve_path_packings("band") == plan.packings
     assert plan.weak_zone_models("biaxial") == {"weak_sigma": "out/weak_zone/models/nn_sigma.pt",
                                                 "weak_tangent": "out/weak_zone/models/nn_tangent.pt"}
