@@ -11,7 +11,9 @@ surrogate tables (``analysis/problem_surrogate.py``), and beside the ensemble sp
 correlation with the error after the peak that of the distance to the training states (does
 either say *where* the networks are wrong?). For the FEM–ML runs also the spread's calibration:
 median error / spread, as measured and scaled by the scale of the run's own networks on their
-held-out trajectories (``analysis/calibration.py``).
+held-out trajectories (``analysis/calibration.py``); and for the problems' FEM–ML runs the same
+networks driven along the reference's strain histories (no FEM): the spread's rank correlation
+with that error, the material's alone, and its median after the peak beside the run's.
 
     .venv/bin/snakemake -j2 all                       # the pipeline: datasets, networks, references
     .venv/bin/python bench/bench_trainings.py --seeds 1
@@ -32,7 +34,8 @@ import numpy as np
 import pandas as pd
 
 from granular_multiscale.analysis import calibration
-from granular_multiscale.analysis.problem_surrogate import comparison_table, rank_correlation_after_peak, run_features
+from granular_multiscale.analysis.problem_surrogate import (comparison_table, rank_correlation_after_peak, run_features,
+                                                            stress_errors)
 from granular_multiscale.config import problem_adaptive_config
 from granular_multiscale.data import read_run, write_run
 from granular_multiscale.drivers.adaptive import run_adaptive
@@ -44,7 +47,7 @@ from granular_multiscale.surrogate.dataset import read_dataset
 from granular_multiscale.surrogate.models import SurrogateModel
 from granular_multiscale.surrogate.training import heldout_spread_scale, train
 
-from common import bench_parser, curve_error_pct, require_files, run_folder
+from common import bench_parser, curve_error_pct, driven_response, require_files, run_folder
 
 ROUNDS = {"": "the specimen's", WEAK_ZONE_ROUND: "the weak zone's"}
 
@@ -135,6 +138,31 @@ def training_distance(run, zones) -> np.ndarray:
     return distance
 
 
+def along_reference_strains(reference, run, zones) -> dict:
+    """The run's networks (the weak zone's at zone 1) driven along the reference's strain histories,
+    no FEM: their error there is the material's alone, where FEM–ML's also holds the field's (a band
+    in another place). Spearman's ρ between their spread and that error, and the median of the error
+    against the run's own, after the peak as in :func:`rank_correlation_after_peak`."""
+    strain = reference["strain"].transpose("step", "gp", "comp").values
+    p0 = float(reference.attrs["confining_pressure_Pa"])
+    stress, spread = np.empty_like(strain), np.empty(strain.shape[:2])
+    files = [run.attrs["surrogate_sigma_model"], run.attrs.get("surrogate_weak_zone_sigma_model")]
+    for zone, file in enumerate(files):
+        points = zones == zone if files[1] else np.ones(run.sizes["gp"], dtype=bool)
+        if file and points.any():
+            stress[:, points], spread[:, points] = driven_response(file, strain[:, points], p0)
+    driven = reference.copy()
+    driven["stress"] = (("step", "gp", "comp"), stress)
+    force = reference["footing_pressure" if reference.attrs.get("problem") == "footing" else "load_force"].values
+    peak = int(np.argmax(force))
+    after = slice(peak + 1 if peak + 1 < reference.sizes["step"] else 1, None)
+    return {"along the reference's strains: spread–error rank correlation (after the peak)":
+                rank_correlation_after_peak(reference, driven, spread),
+            "along the reference's strains: median stress error after the peak (p0)":
+                float(np.median(stress_errors(reference, driven)[after])) / p0,
+            "median stress error after the peak (p0)": float(np.median(stress_errors(reference, run)[after])) / p0}
+
+
 @functools.lru_cache(maxsize=None)
 def spread_scale(model_file: str, heldout_file: str) -> float:
     """The scale of a model file's spread on a held-out dataset (each training's runs share them)."""
@@ -167,9 +195,10 @@ def compare(plan: Plan, problem: str, file: Path) -> dict:
                 "wall time (s)": float(run.attrs["time_run_s"]), **scaled_calibration(plan, run, reference)}
     reference = read_run(plan.problem_run(problem, plan.problem_cases[problem][0]))
     row = comparison_table(reference, {"run": run}).iloc[0].drop("run").to_dict()
+    zones = make_problem(plan.config, problem).zones()
     if fem_ml:
         row.update(scaled_calibration(plan, run, reference))
-    zones = make_problem(plan.config, problem).zones()
+        row.update(along_reference_strains(reference, run, zones))
     row["distance–error rank correlation (after the peak)"] = rank_correlation_after_peak(
         reference, run, training_distance(run, zones))
     return row

@@ -35,18 +35,9 @@ from granular_multiscale.drivers.fem_ml import run_fem_ml
 from granular_multiscale.fem import make_problem
 from granular_multiscale.plan import WEAK_ZONE_ROUND, Plan
 from granular_multiscale.surrogate.dataset import build_dataset_from_sources
-from granular_multiscale.surrogate.material import SurrogateMaterial
-from granular_multiscale.surrogate.synthetic import material_point_run
 from granular_multiscale.surrogate.training import train
 
-from common import bench_parser, require_files, run_folder
-
-
-def driven_stress(model_file, strain: np.ndarray) -> np.ndarray:
-    """[steps, points, 6] the networks' stress along the strain histories [steps, points, 6], each
-    step committed as converged (no FEM)."""
-    material = SurrogateMaterial.from_files(strain.shape[1], model_file, tangent="autodiff")
-    return material_point_run(material, strain)["stress"].values
+from common import bench_parser, driven_response, require_files, run_folder
 
 
 def main(argv=None) -> list[dict]:
@@ -77,7 +68,7 @@ def main(argv=None) -> list[dict]:
     peak_step = int(np.argmax(np.abs(reference["load_force"].values)))
     p0 = float(config["specimen"]["confining_pressure"])
     # the specimen's networks along the other points' histories: what the weak zone's are measured against
-    specimen = np.linalg.norm(driven_stress(L.model("sigma"), strain[:, ~weak]) - stress[:, ~weak], axis=-1) / p0
+    specimen = np.linalg.norm(driven_response(L.model("sigma"), strain[:, ~weak], p0)[0] - stress[:, ~weak], axis=-1) / p0
     specimen_driven = {"up to the peak (p0)": float(np.median(specimen[:peak_step + 1])),
                        "after the peak (p0)": float(np.median(specimen[peak_step + 1:]))}
     print("the specimen's networks driven along their points' FEM–DEM histories:", specimen_driven, flush=True)
@@ -106,7 +97,7 @@ def main(argv=None) -> list[dict]:
                                      weak_zone_models={"sigma": sigma_file,
                                                        "tangent": L.model("tangent", WEAK_ZONE_ROUND)}),
                           run_file, config)
-            driven = np.linalg.norm(driven_stress(sigma_file, strain[:, weak]) - stress[:, weak], axis=-1) / p0
+            driven = np.linalg.norm(driven_response(sigma_file, strain[:, weak], p0)[0] - stress[:, weak], axis=-1) / p0
             table = comparison_table(reference, {"FEM–ML": read_run(run_file)}).iloc[0].drop("run").to_dict()
             rows.append({"sources": " + ".join(sets), "training seed": int(config["seed"]) + offset,
                          "trajectories": sum(run.sizes["gp"] for _, run in sources),

@@ -180,6 +180,18 @@ def top_force_error_pct(reference, run, phase: str = "all") -> float:
     return curve_error_pct(reference, run, "top_force")[phase]
 
 
+def driven_response(model_file, strain: np.ndarray, confining_pressure: float) -> tuple[np.ndarray, np.ndarray]:
+    """The networks of `model_file` along the strain histories [steps, points, 6], each step committed
+    as converged (no FEM: the material's error alone): their stress [steps, points, 6] (Pa) and
+    relative ensemble spread [steps, points] (what FEM–ML writes as ``stress_spread_relative``)."""
+    from granular_multiscale.surrogate.material import SurrogateMaterial, relative_spread
+    from granular_multiscale.surrogate.synthetic import material_point_run
+
+    material = SurrogateMaterial.from_files(strain.shape[1], model_file, tangent="autodiff")
+    stress = material_point_run(material, strain)["stress"].values
+    return stress, relative_spread(material.stress_spread, stress, confining_pressure)
+
+
 # --------------------------------------------------------------------------------------
 # adaptive variants, written 'key=value,key=value' on the command line
 
