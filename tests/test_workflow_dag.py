@@ -61,7 +61,7 @@ def test_the_default_scale_runs_the_adaptive_curve_in_all(tmp_path):
     """Pass criterion: config/config.yaml (the Snakefile's own) makes `all` run the validation path
     at each of its adaptive thresholds with its control (adaptive.controls), each problem's adaptive
     run at threshold .inf with its control, and draw the mode map; FEM–ML's biaxial test reads the
-    weak zone's networks, trained on the set band_weak of the weak packing."""
+    weak zone's networks, trained on the sets band_weak and band_weak_cycles of the weak packing."""
     out = tmp_path / "default"
     command = [SNAKEMAKE, "-n", "all", "--config", f"output_dir={out}"]
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
@@ -78,8 +78,9 @@ def test_the_default_scale_runs_the_adaptive_curve_in_all(tmp_path):
     assert f"output: {L.figure('adaptive_mode_map.png')}" in output
     # the biaxial test's weak zone: its own networks, trained on the weak packing's RVE paths, in FEM–ML
     jobs = re.split(r"^(?:local)?rule ", output, flags=re.M)
-    weak_set = next(job for job in jobs if f"output: {L.rve_paths('band_weak')}" in job)
-    assert f"input: {L.weak_packing()}\n" in weak_set
+    for name in ("band_weak", "band_weak_cycles"):
+        weak_set = next(job for job in jobs if f"output: {L.rve_paths(name)}" in job)
+        assert f"input: {L.weak_packing()}\n" in weak_set
     fem_ml = next(job for job in jobs if f"output: {L.problem_run('biaxial', 'fem_ml', 'biaxial')}" in job)
     assert L.model("sigma", "weak_zone/") in fem_ml and L.model("tangent", "weak_zone/") in fem_ml
     footing = next(job for job in jobs if f"output: {L.problem_run('footing', 'fem_ml', 'footing')}" in job)
