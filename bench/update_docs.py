@@ -429,14 +429,19 @@ def render_fem_ml_vs_dem(record: dict) -> str:
     f, config = record["figures"], record["settings"].get("config_difference", {})
     pressure = config.get("specimen", {}).get("confining_pressure")
     where = f"confining pressure {pressure / 1e3:g} kPa, " if pressure else ""
+
+    def reached(steps: int) -> str:  # a run that stopped early is compared over the steps it reached
+        return "" if steps >= f["steps"] else f" (it stopped after {steps} of the {f['steps']} steps)"
+
     return (f"{record['date'].split()[0]}, commit {record['commit'][:7]}: {where}{f['path']}, {f['steps']} steps, "
             f"{f['gauss_points']} RVEs of {f['n_spheres']} spheres; "
             f"{'the networks of a pipeline run' if f['networks'].startswith('pipeline models') else f['networks']}. "
             f"FEM–ML against FEM–DEM: "
             f"top force {f['fem_ml_top_force_error_pct']:.1f} %, volumetric strain "
-            f"{f['fem_ml_volumetric_strain_error_pct']:.0f} % of the peak (largest over the path)."
+            f"{f['fem_ml_volumetric_strain_error_pct']:.0f} % of the peak (largest over the path){reached(f['fem_ml']['steps'])}."
             + "".join(f" With {label}: top force {run['top_force_error_pct']:.1f} %, volumetric strain "
-                      f"{run['volumetric_strain_error_pct']:.0f} %." for label, run in f.get("fem_ml_compared", {}).items())
+                      f"{run['volumetric_strain_error_pct']:.0f} %{reached(run['steps'])}."
+                      for label, run in f.get("fem_ml_compared", {}).items())
             + "\n")
 
 

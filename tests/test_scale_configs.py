@@ -122,16 +122,20 @@ def test_new_paths_add_path3_and_path4_and_keep_path1_and_path2(scale):
                       "path4": (8, [0.01, 0.02, 0.03, 0.04], [0.007, 0.017, 0.027, 0.037])}
 
 
-def test_pressure_input_adds_three_consolidation_pressures_and_keeps_the_default_sets():
-    """Pass criterion: config/pressure_input.yaml over the default scale keeps every default
-    RVE-path set as it is (their files are reused), adds sets at 0.4, 2 and 4 p0 to the training
-    sources, gives the networks p0, and changes nothing else but the output folder."""
+@pytest.mark.parametrize("name, trajectories", [("pressure_input.yaml", 32), ("pressure_input_more.yaml", 96)])
+def test_pressure_input_adds_three_consolidation_pressures_and_keeps_the_default_sets(name, trajectories):
+    """Pass criterion: config/pressure_input.yaml (and its variant with more data) over the default
+    scale keeps every default RVE-path set as it is (their files are reused), adds sets of 32 (96)
+    trajectories at 0.4, 2 and 4 p0 to the training sources, gives the networks p0, and changes
+    nothing else but the output folder."""
     alone = validate_config(as_snakemake_loads("config.yaml"))
-    with_p0 = validate_config(as_snakemake_loads("config.yaml", "pressure_input.yaml"))
+    with_p0 = validate_config(as_snakemake_loads("config.yaml", name))
     sets = with_p0["rve_paths"]["sets"]
     assert {k: sets[k] for k in alone["rve_paths"]["sets"]} == alone["rve_paths"]["sets"]
-    assert {k: sets[k]["consolidation_pressure"] for k in set(sets) - set(alone["rve_paths"]["sets"])} == \
-        {"p040": 0.4, "p200": 2.0, "p400": 4.0}
+    added = set(sets) - set(alone["rve_paths"]["sets"])
+    assert {k: sets[k]["consolidation_pressure"] for k in added} == {"p040": 0.4, "p200": 2.0, "p400": 4.0}
+    families = ("triaxial", "axisymmetric", "random_walk", "proportional", "plane_strain", "isotropic_triaxial")
+    assert {k: sum(sets[k][family] for family in families) for k in added} == dict.fromkeys(added, trajectories)
     assert with_p0["surrogate"]["training_sources"] == alone["surrogate"]["training_sources"] + \
         ["rve_paths:p040", "rve_paths:p200", "rve_paths:p400"]
     assert with_p0["surrogate"]["history_variables"] == alone["surrogate"]["history_variables"] + ["p0"]
