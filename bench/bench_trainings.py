@@ -34,8 +34,8 @@ import numpy as np
 import pandas as pd
 
 from granular_multiscale.analysis import calibration
-from granular_multiscale.analysis.problem_surrogate import (comparison_table, rank_correlation_after_peak, run_features,
-                                                            stress_errors)
+from granular_multiscale.analysis.problem_surrogate import (comparison_table, first_step_after_peak,
+                                                            rank_correlation_after_peak, run_features, stress_errors)
 from granular_multiscale.config import problem_adaptive_config
 from granular_multiscale.data import read_run, write_run
 from granular_multiscale.drivers.adaptive import run_adaptive
@@ -123,18 +123,25 @@ def runs_of(plan: Plan, models: dict | None, folder: Path, workers: int, logger)
     return runs
 
 
+def networks_by_zone(run, zones) -> list[tuple[str, np.ndarray]]:
+    """[(NNσ model file, [n_gp] its points)] of a FEM–ML run: the specimen's networks, and the weak
+    zone's at zone 1 when the run names them."""
+    weak = run.attrs.get("surrogate_weak_zone_sigma_model")
+    if not weak:
+        return [(run.attrs["surrogate_sigma_model"], np.ones(run.sizes["gp"], dtype=bool))]
+    return [(file, zones == zone) for zone, file in enumerate([run.attrs["surrogate_sigma_model"], weak])
+            if (zones == zone).any()]
+
+
 def training_distance(run, zones) -> np.ndarray:
     """[steps, n_gp] each point's distance to its networks' training states (the k-th nearest, over
     the radius that 99 % of the training states are within), along the run's converged strains: the
     indicator of "off the training data", for the weak zone's points (zone 1) from its own networks."""
     distance = np.zeros((run.sizes["step"], run.sizes["gp"]))
-    files = [run.attrs["surrogate_sigma_model"], run.attrs.get("surrogate_weak_zone_sigma_model")]
-    for zone, file in enumerate(files):
-        points = zones == zone if files[1] else np.ones(run.sizes["gp"], dtype=bool)
-        if file and points.any():
-            model = SurrogateModel.load(file)
-            states = TrainingStates(model.training_states, radius=model.training_radius)
-            distance[:, points] = states.distance(run_features(run, model.history)[:, points]) / states.radius
+    for file, points in networks_by_zone(run, zones):
+        model = SurrogateModel.load(file)
+        states = TrainingStates(model.training_states, radius=model.training_radius)
+        distance[:, points] = states.distance(run_features(run, model.history)[:, points]) / states.radius
     return distance
 
 
@@ -146,16 +153,11 @@ def along_reference_strains(reference, run, zones) -> dict:
     strain = reference["strain"].transpose("step", "gp", "comp").values
     p0 = float(reference.attrs["confining_pressure_Pa"])
     stress, spread = np.empty_like(strain), np.empty(strain.shape[:2])
-    files = [run.attrs["surrogate_sigma_model"], run.attrs.get("surrogate_weak_zone_sigma_model")]
-    for zone, file in enumerate(files):
-        points = zones == zone if files[1] else np.ones(run.sizes["gp"], dtype=bool)
-        if file and points.any():
-            stress[:, points], spread[:, points] = driven_response(file, strain[:, points], p0)
+    for file, points in networks_by_zone(run, zones):
+        stress[:, points], spread[:, points] = driven_response(file, strain[:, points], p0)
     driven = reference.copy()
     driven["stress"] = (("step", "gp", "comp"), stress)
-    force = reference["footing_pressure" if reference.attrs.get("problem") == "footing" else "load_force"].values
-    peak = int(np.argmax(force))
-    after = slice(peak + 1 if peak + 1 < reference.sizes["step"] else 1, None)
+    after = slice(first_step_after_peak(reference), None)
     return {"along the reference's strains: spread–error rank correlation (after the peak)":
                 rank_correlation_after_peak(reference, driven, spread),
             "along the reference's strains: median stress error after the peak (p0)":

@@ -67,8 +67,13 @@ def main(argv=None) -> list[dict]:
     stress = reference["stress"].transpose("step", "gp", ...).values
     peak_step = int(np.argmax(np.abs(reference["load_force"].values)))
     p0 = float(config["specimen"]["confining_pressure"])
+
+    def driven_error(model_file, points: np.ndarray) -> np.ndarray:
+        """[steps, points] ‖σ − σ_ref‖ / p0 of the networks along those points' FEM–DEM histories."""
+        return np.linalg.norm(driven_response(model_file, strain[:, points], p0)[0] - stress[:, points], axis=-1) / p0
+
     # the specimen's networks along the other points' histories: what the weak zone's are measured against
-    specimen = np.linalg.norm(driven_response(L.model("sigma"), strain[:, ~weak], p0)[0] - stress[:, ~weak], axis=-1) / p0
+    specimen = driven_error(L.model("sigma"), ~weak)
     specimen_driven = {"up to the peak (p0)": float(np.median(specimen[:peak_step + 1])),
                        "after the peak (p0)": float(np.median(specimen[peak_step + 1:]))}
     print("the specimen's networks driven along their points' FEM–DEM histories:", specimen_driven, flush=True)
@@ -97,7 +102,7 @@ def main(argv=None) -> list[dict]:
                                      weak_zone_models={"sigma": sigma_file,
                                                        "tangent": L.model("tangent", WEAK_ZONE_ROUND)}),
                           run_file, config)
-            driven = np.linalg.norm(driven_response(sigma_file, strain[:, weak], p0)[0] - stress[:, weak], axis=-1) / p0
+            driven = driven_error(sigma_file, weak)
             table = comparison_table(reference, {"FEM–ML": read_run(run_file)}).iloc[0].drop("run").to_dict()
             rows.append({"sources": " + ".join(sets), "training seed": int(config["seed"]) + offset,
                          "trajectories": sum(run.sizes["gp"] for _, run in sources),

@@ -99,16 +99,21 @@ def spread_rank_correlation(reference: xr.Dataset, run: xr.Dataset) -> float:
     return rank_correlation_after_peak(reference, run, run["stress_spread_relative"].transpose("step", "gp").values)
 
 
+def first_step_after_peak(reference: xr.Dataset) -> int:
+    """The first step after the reference's peak force; 1 where the force still rises at the end (the
+    footing), so that "after the peak" is every step."""
+    peak = int(np.argmax(_force(reference)))
+    return peak + 1 if peak + 1 < reference.sizes["step"] else 1
+
+
 def rank_correlation_after_peak(reference: xr.Dataset, run: xr.Dataset, indicator: np.ndarray) -> float:
-    """Median over the steps after the reference's peak force (every step from 1 on where the force
-    still rises at the end, the footing) of Spearman's ρ between `indicator` [steps, n_gp] and the
-    run's stress error over the Gauss points where the networks answered: does the indicator say
-    *where* the networks are wrong?"""
+    """Median over the steps from :func:`first_step_after_peak` on of Spearman's ρ between
+    `indicator` [steps, n_gp] and the run's stress error over the Gauss points where the networks
+    answered: does the indicator say *where* the networks are wrong?"""
     errors = stress_errors(reference, run)
     indicator = indicator[: errors.shape[0]]
     answered = _networks_answered(run)[: errors.shape[0]]
-    peak = int(np.argmax(_force(reference)))
-    first = peak + 1 if peak + 1 < reference.sizes["step"] else 1  # a reference still rising at the end: every step
+    first = first_step_after_peak(reference)
     rho = [spearman(indicator[k][answered[k]], errors[k][answered[k]]) for k in range(first, errors.shape[0])]
     rho = [r for r in rho if np.isfinite(r)]
     return float(np.median(rho)) if rho else float("nan")
