@@ -4,8 +4,8 @@ Each variant is a set of `adaptive` settings (threshold, anchor share, correctio
 networks and RVE packings of a finished run of the pipeline; each row says what it cost (DEM
 particle-steps of trials and replays, in % of the FEM–DEM run's; wall time) and how far it is from
 FEM–DEM (top force: max over the path in % of the FEM–DEM peak; stress MAE over every Gauss point
-and step), and how many Newton iterations a load step took on average (a correction's dependence
-on a point's own strain is left out of the tangent). FEM–ML (the surrogate alone) is the first
+and step), and how many Newton iterations a load step took on average (what a correction costs
+Newton; `correction_tangent=false` leaves its slope out of the tangent). FEM–ML (the surrogate alone) is the first
 row of every path. The rows are printed and
 written to the record (--out, default {output_dir}/bench/adaptive_variants.json).
 
@@ -24,6 +24,9 @@ replaced by the analytic model.
 
     .venv/bin/python bench/bench_adaptive_variants.py --paths --problems footing --controls \
         --variant indicator=off_training,threshold=0.5 --variant threshold=0.02
+
+--models runs every variant with another training's networks (the folder bench/bench_trainings.py
+writes), against the same references; their runs are kept apart from the pipeline networks'.
 
 A variant is `key=value` pairs of the config section `adaptive` (threshold: one of its thresholds;
 .inf / inf for none); what it leaves out comes from the config. Runs are written to
@@ -65,7 +68,7 @@ def measure(reference, run, wall: float) -> dict:
         "dem_share_pct": 100 * dem / total,
         "replay_share_pct": 100 * replay / total,
         "dem_points_final": int(run.attrs.get("dem_points_final", 0)),
-        # the correction's dependence on a point's own strain is not in the tangent: does Newton slow down?
+        # a correction couples the points (and without correction_tangent its own slope is not in the tangent)
         "newton_iterations_per_step": float(run["newton_iterations"].values[1:steps].mean()),
         "wall_s": wall,
     }
@@ -81,6 +84,11 @@ def variant_config(config: dict, text: str) -> tuple[dict, float, str]:
     return validate_config(cfg), threshold, variant_name({**variant, "threshold": threshold})
 
 
+def models_folder_name(models: Path) -> str:
+    """The folder, beside the pipeline networks' runs, of the runs made with other networks."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", f"models={Path(models).resolve()}")
+
+
 def problem_rows(plan: Plan, problem: str, variants: list[str], controls: bool, folder: Path, workers: int,
                  models: Path | None = None) -> list[dict]:
     """FEM–ML and every variant (and its controls) on the first load path of `problem`, against
@@ -90,7 +98,7 @@ def problem_rows(plan: Plan, problem: str, variants: list[str], controls: bool, 
     case = plan.problem_cases[problem][0]
     sigma, tangent_model = pipeline_models(config, models)
     if models is not None:  # other networks' runs apart from the pipeline's
-        folder = folder / re.sub(r"[^A-Za-z0-9_.-]+", "_", f"models={Path(models).resolve()}")
+        folder = folder / models_folder_name(models)
     weak = plan.weak_zone_models(problem)
     if models is not None:
         weak = {key: Path(models) / f"{WEAK_ZONE_ROUND}{Path(file).name}" for key, file in weak.items()}  # as bench_trainings
@@ -136,7 +144,7 @@ def main(argv=None) -> list[dict]:
     parser.add_argument("--controls", action="store_true",
                         help="each variant of a problem followed by its controls (adaptive.controls)")
     parser.add_argument("--models", type=Path, default=None,
-                        help="problems: a folder with other networks of the pipeline's names (another training; "
+                        help="a folder with other networks of the pipeline's names (another training; "
                              "bench/bench_trainings.py writes them), instead of the pipeline's")
     parser.add_argument("--variant", action="append", default=[], help="adaptive settings, key=value,...")
     parser.add_argument("--workers", type=int, default=2)
@@ -145,24 +153,25 @@ def main(argv=None) -> list[dict]:
 
     config = args.config
     plan = Plan(config)
-    sigma, tangent_model = pipeline_models(config)
+    sigma, tangent_model = pipeline_models(config, args.models)
     packings = plan.packings
     tangent = config["surrogate"]["tangent"]
     references = {path: plan.layout.run("fem_dem", path) for path in args.paths}
     require_files(sigma, tangent_model, *packings, *references.values(),
                   hint="run the pipeline (docstring of bench/bench_adaptive_variants.py) first")
     measurement = parser.measurement(args)
+    path_runs = run_folder(args) if args.models is None else run_folder(args) / models_folder_name(args.models)
     rows = []
     for path in args.paths:
         reference = read_run(references[path])
         file = Path(plan.layout.fem_ml(path))  # the pipeline's, or the same run made here
-        fem_ml = read_run(file) if file.is_file() else run_fem_ml(config, path, sigma, tangent_model, tangent,
-                                                                  progress=False)
+        fem_ml = (read_run(file) if file.is_file() and args.models is None
+                  else run_fem_ml(config, path, sigma, tangent_model, tangent, progress=False))
         rows.append({"path": path, "variant": "FEM–ML", **measure(reference, fem_ml, float(fem_ml.attrs["time_run_s"]))})
         print(rows[-1], flush=True)
         for text in args.variant:
             cfg, threshold, name = variant_config(config, text)
-            file = run_folder(args) / name / f"{path}.h5"
+            file = path_runs / name / f"{path}.h5"
             if file.is_file():
                 run = read_run(file)
                 wall = float(run.attrs["time_run_s"])

@@ -198,13 +198,16 @@ def driven_response(model_file, strain: np.ndarray, confining_pressure: float) -
 
 def parse_variant(text: str) -> dict:
     """'anchor_fraction=0.1,correction=kernel,threshold=inf,anchor_seed=3' -> {key: value}: integers,
-    numbers (inf, .inf) and strings."""
+    numbers (inf, .inf), true / false and strings."""
     out = {}
     for item in filter(None, text.split(",")):
         key, sep, value = item.partition("=")
         if not sep:
             raise SystemExit(f"variant item {item!r} is not key=value")
         value = value.strip()
+        if value.lower() in ("true", "false"):  # correction_tangent
+            out[key.strip()] = value.lower() == "true"
+            continue
         try:
             out[key.strip()] = int(value)  # anchor_seed
         except ValueError:

@@ -289,12 +289,22 @@ def render_reference_scatter(record: dict) -> str:
 
 
 def render_adaptive_variants(record: dict) -> str:
-    """A problem's adaptive variants and their controls beside FEM–ML (bench_adaptive_variants --problems)."""
+    """The adaptive variants beside FEM–ML (bench_adaptive_variants): a table per load path of the
+    specimen (--paths) and per problem with its controls (--problems)."""
     rows = [r for r in record["figures"] if "problem" in r]
     models = record["settings"].get("models")
     networks = f"the networks of training {Path(models).parent.name} (bench_trainings)" if models else \
         "the pipeline's networks"
     lines = [f"{record['date'].split()[0]}, commit {record['commit'][:7]}, {networks}:", ""]
+    for path in dict.fromkeys(r["path"] for r in record["figures"] if "path" in r):
+        lines += [f"| {path} | top force max error (% of peak) | stress MAE (kPa) | DEM particle-steps (replays) "
+                  "| DEM points at the end | Newton iterations per step | wall |",
+                  "| --- | --- | --- | --- | --- | --- | --- |"]
+        lines += [f"| {r['variant']} | {r['top_force_pct_of_peak']:.2f} | {r['stress_mae_kpa']:.2f} | "
+                  f"{r['dem_share_pct']:.1f} % ({r['replay_share_pct']:.1f} %) | {r['dem_points_final']} | "
+                  f"{r['newton_iterations_per_step']:.2f} | {r['wall_s']:.1f} s |"
+                  for r in record["figures"] if r.get("path") == path]
+        lines.append("")
     for problem in dict.fromkeys(r["problem"] for r in rows):
         lines += problem_table([r for r in rows if r["problem"] == problem], problem)
     return "\n".join(lines) + "\n"

@@ -79,6 +79,7 @@ def test_adaptive_variants_of_the_command_line():
     variant = common.parse_variant("anchor_fraction=0.1,correction=kernel,anchor_seed=3,threshold=.inf")
     assert variant == {"anchor_fraction": 0.1, "correction": "kernel", "anchor_seed": 3, "threshold": float("inf")}
     assert common.variant_name({"threshold": 0.02, "correction": "kernel"}) == "correction=kernel,threshold=0.02"
+    assert common.parse_variant("correction_tangent=false") == {"correction_tangent": False, "threshold": float("inf")}
     with pytest.raises(SystemExit, match="'kernel' is not key=value"):
         common.parse_variant("correction=none,kernel")
 

@@ -73,9 +73,11 @@ With ``correction: kernel`` every surrogate point j gets σ_NN,j + Σ_i w_ji r_i
 i, the Nadaraya–Watson weights of a Gaussian kernel of width ``correction_length`` in the networks'
 inputs (strain and history, in units of their training range, :func:`residual_correction`):
 the residual of the DEM points in the most similar states, a smooth function of the trial. Its
-dependence on the DEM points' strains is left out of the tangent (it couples points), as is its
-dependence on the point's own strain (the weights change slowly); Newton converges on the
-residual all the same. No DEM point, or no surrogate point, leaves nothing to correct: threshold
+dependence on the point's own strain (the weights move with its inputs) is in the point's tangent
+(:func:`residual_correction_jacobian` through the inputs' Jacobian; ``correction_tangent: false``
+leaves it out, to measure what it buys); its dependence on the DEM points' strains is left out (it
+couples points), and Newton converges on the residual all the same. No DEM point, or no surrogate
+point, leaves nothing to correct: threshold
 ∞ is still FEM–ML and threshold 0 FEM–DEM, bit for bit. ``correction: local_kernel`` divides the
 kernel values by max(1, their sum) instead of their sum: the correction fades to zero at a point
 whose state is a few widths from every DEM point's, instead of carrying the nearest residual. Anchors (``anchor_fraction``) make the
@@ -132,15 +134,38 @@ def residual_correction(x_surrogate: np.ndarray, x_dem: np.ndarray, residual: np
     similar state, instead of carrying the nearest residual however far it is)."""
     if np.isinf(length):
         return np.broadcast_to(residual.mean(axis=0), (x_surrogate.shape[0], residual.shape[1])).copy()
+    weights, _ = _correction_weights(x_surrogate, x_dem, length, local)
+    return weights @ residual
+
+
+def residual_correction_jacobian(x_surrogate: np.ndarray, x_dem: np.ndarray, residual: np.ndarray,
+                                 length: float, local: bool = False) -> np.ndarray:
+    """[n_s, 6, f] d(residual_correction)/d(x_surrogate), each surrogate point's own inputs moving,
+    the DEM points' held. With k_i = exp(−|x − x_i|²/2ℓ²) and w_i = k_i / N:
+    dw_i/dx = w_i [(x_i − x) − c Σ_l w_l (x_l − x)] / ℓ², with c = 1 where N = Σk (the weights sum to
+    1 and move only relative to each other) and c = 0 where `local` divides by 1 (Σk < 1). The mean
+    residual (`length` inf) does not move."""
+    n_s, f = x_surrogate.shape
+    if np.isinf(length):
+        return np.zeros((n_s, residual.shape[1], f))
+    weights, normalised = _correction_weights(x_surrogate, x_dem, length, local)
+    offsets = x_dem[None, :, :] - x_surrogate[:, None, :]  # [n_s, m, f]: x_i − x
+    mean_offset = np.einsum("sm,smf->sf", weights, offsets)
+    d_weights = weights[:, :, None] * (offsets - normalised[:, None, None] * mean_offset[:, None, :]) / length**2
+    return np.einsum("mc,smf->scf", residual, d_weights)
+
+
+def _correction_weights(x_surrogate: np.ndarray, x_dem: np.ndarray, length: float,
+                        local: bool) -> tuple[np.ndarray, np.ndarray]:
+    """([n_s, m] the correction's weights, [n_s] 1.0 where they are normalised to sum 1, else 0.0)."""
     d2 = ((x_surrogate[:, None, :] - x_dem[None, :, :]) ** 2).sum(axis=-1)
     logits = -d2 / (2.0 * length**2)
     if local:
-        weights = np.exp(logits)
-        weights /= np.maximum(weights.sum(axis=1, keepdims=True), 1.0)
-        return weights @ residual
+        kernel = np.exp(logits)
+        total = kernel.sum(axis=1, keepdims=True)
+        return kernel / np.maximum(total, 1.0), (total[:, 0] > 1.0).astype(float)
     weights = np.exp(logits - logits.max(axis=1, keepdims=True))  # the nearest gets exp(0): no underflow to 0/0
-    weights /= weights.sum(axis=1, keepdims=True)
-    return weights @ residual
+    return weights / weights.sum(axis=1, keepdims=True), np.ones(x_surrogate.shape[0])
 
 
 def anchor_points(n_points: int, fraction: float, seed: int) -> np.ndarray:
@@ -157,7 +182,7 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
     def __init__(self, surrogate: SurrogateMaterial, dem: DemSubsetMaterialPointSet, threshold: float,
                  confining_pressure: float, indicator: str = "spread", out_of_range_weight: float = 1.0,
                  anchors=(), logger: logging.Logger | None = None, correction: str = "none",
-                 correction_length: float = 0.05, schedule=None):
+                 correction_length: float = 0.05, schedule=None, correction_tangent: bool = True):
         super().__init__(surrogate.n_points)
         if dem.n_points != surrogate.n_points:
             raise ValueError(f"the surrogate has {surrogate.n_points} points, the DEM set {dem.n_points}")
@@ -186,6 +211,7 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
             indicator = SCHEDULE
         self.schedule = schedule
         self.correction, self.correction_length = correction, float(correction_length)
+        self.correction_tangent = bool(correction_tangent)
         self.surrogate, self.dem = surrogate, dem
         self.threshold = float(threshold)
         self.indicator = indicator
@@ -249,9 +275,12 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
             dem_stress, dem_tangent = self.dem.evaluate(strain, need_tangent=need_tangent)
             if self.correction != "none" and not mode.all():
                 x = self.surrogate.trial_scaled_features()
-                shift = residual_correction(x[~mode], x[mode], dem_stress[mode] - stress[mode], self.correction_length,
-                                            local=self.correction == "local_kernel")
+                residual, local = dem_stress[mode] - stress[mode], self.correction == "local_kernel"
+                shift = residual_correction(x[~mode], x[mode], residual, self.correction_length, local=local)
                 stress[~mode] += shift
+                if tangent is not None and self.correction_tangent:  # d shift / dε through the point's own inputs
+                    d_shift = residual_correction_jacobian(x[~mode], x[mode], residual, self.correction_length, local)
+                    tangent[~mode] += d_shift @ self.surrogate.trial_scaled_feature_jacobian()[~mode]
                 self._correction_now = float(np.linalg.norm(shift, axis=1).mean())
             stress[mode] = dem_stress[mode]
             if tangent is not None:
@@ -293,6 +322,7 @@ class AdaptiveMaterialPointSet(MaterialPointSet):
         return {"dem": self.dem.checkpoint_key(), "threshold": self.threshold, "indicator": self.indicator,
                 "out_of_range_weight": self.out_of_range_weight, "anchors": self.anchors.tolist(),
                 "correction": self.correction, "correction_length": self.correction_length,
+                "correction_tangent": self.correction_tangent,
                 "schedule": None if self.schedule is None else self.schedule.tolist()}
 
     def get_state(self) -> dict[str, Any]:

@@ -23,7 +23,7 @@ run's stress, DEM where the point is DEM) and (:func:`adaptive_variables`):
   ``dem_points`` and ``correction`` (mean norm of the correction at the surrogate points, Pa) at its end;
 * attributes ``adaptive_threshold``, ``adaptive_indicator``, ``adaptive_out_of_range_weight``,
   ``adaptive_anchor_fraction``, ``adaptive_anchors``, ``adaptive_anchor_seed``, ``adaptive_correction``,
-  ``adaptive_correction_length``, ``dem_particle_steps`` (trials + replays, what
+  ``adaptive_correction_length``, ``adaptive_correction_tangent``, ``dem_particle_steps`` (trials + replays, what
   compares with FEM–DEM's ``dem_particle_steps``), ``dem_trial_particle_steps``,
   ``dem_replay_particle_steps``, ``dem_point_fraction`` (DEM points / points, mean over the steps)
   and ``dem_points_final``.
@@ -123,7 +123,8 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
                                                 dask_client=dask_client, assignment=assignment)
     material = AdaptiveMaterialPointSet(surrogate, dem, threshold, bvp.confining_pressure,
                                         section["indicator"], float(section["out_of_range_weight"]), anchors, logger,
-                                        section["correction"], float(section["correction_length"]), schedule)
+                                        section["correction"], float(section["correction_length"]), schedule,
+                                        bool(section["correction_tangent"]))
     startup = time.perf_counter() - t0
     answer = (f"NNσ {sigma_model} (ensemble of {surrogate.ensemble_size}, {tangent} tangent)" if control is None
               else f"control: the {control} model, promotions copied from {schedule_from}")
@@ -152,6 +153,7 @@ def run_adaptive(config: dict, path_name: str, threshold: float, packing_paths: 
         "adaptive_anchor_seed": anchor_seed,
         "adaptive_correction": section["correction"],
         "adaptive_correction_length": float(section["correction_length"]),
+        "adaptive_correction_tangent": int(section["correction_tangent"]),
         "dem_particle_steps": trial + replay,
         "dem_trial_particle_steps": trial,
         "dem_replay_particle_steps": replay,

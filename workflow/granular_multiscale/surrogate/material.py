@@ -374,6 +374,15 @@ class SurrogateMaterial(MaterialPointSet):
             raise RuntimeError(f"{type(self).__name__}.trial_scaled_features() needs an evaluation first")
         return (self._trial_features - self._x_min) / self._span
 
+    def trial_scaled_feature_jacobian(self) -> np.ndarray:
+        """[n, features, 6] d(trial_scaled_features)/d(strain) at the last evaluation, with the strain
+        as the tangent takes it (engineering shears) and the chain rule through the history variables."""
+        if self._trial is None:
+            raise RuntimeError(f"{type(self).__name__}.trial_scaled_feature_jacobian() needs an evaluation first")
+        with torch.no_grad():
+            jacobian = self._feature_jacobian(torch.from_numpy(self._trial), *self._converged()) / self._eng
+        return jacobian.numpy() / self._span[:, None]
+
     @property
     def stress_spread(self) -> np.ndarray:
         """[committed states, n_points, 6] the ensemble spread of NNσ at each commit so far (Pa)."""
