@@ -77,8 +77,8 @@ dependence on the point's own strain (the weights move with its inputs) is in th
 (:func:`residual_correction_jacobian` through the inputs' Jacobian; ``correction_tangent: false``
 leaves it out, to measure what it buys); its dependence on the DEM points' strains is left out (it
 couples points), and Newton converges on the residual all the same. No DEM point, or no surrogate
-point, leaves nothing to correct: threshold
-∞ is still FEM–ML and threshold 0 FEM–DEM, bit for bit. ``correction: local_kernel`` divides the
+point, leaves nothing to correct: threshold ∞ is still FEM–ML and threshold 0 FEM–DEM, bit for
+bit. ``correction: local_kernel`` divides the
 kernel values by max(1, their sum) instead of their sum: the correction fades to zero at a point
 whose state is a few widths from every DEM point's, instead of carrying the nearest residual. Anchors (``anchor_fraction``) make the
 DEM points that measure the residual from step 0 on, without replay.
