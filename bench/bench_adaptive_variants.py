@@ -5,9 +5,9 @@ networks and RVE packings of a finished run of the pipeline; each row says what 
 particle-steps of trials and replays, in % of the FEM–DEM run's; wall time) and how far it is from
 FEM–DEM (top force: max over the path in % of the FEM–DEM peak; stress MAE over every Gauss point
 and step), and how many Newton iterations a load step took on average (what a correction costs
-Newton; `correction_tangent=false` leaves its slope out of the tangent). FEM–ML (the surrogate alone) is the first
-row of every path. The rows are printed and
-written to the record (--out, default {output_dir}/bench/adaptive_variants.json).
+Newton; `correction_tangent=false` leaves its slope out of the tangent). FEM–ML (the surrogate
+alone) is the first row of every path. The rows are printed and written to the record (--out,
+default {output_dir}/bench/adaptive_variants.json).
 
     .venv/bin/snakemake -j2 all --configfile config/config.yaml config/new_paths.yaml   # references of path3, path4
     .venv/bin/python bench/bench_adaptive_variants.py --paths path2 path3 path4 \
