@@ -11,9 +11,9 @@ surrogate tables (``analysis/problem_surrogate.py``), and beside the ensemble sp
 correlation with the error after the peak that of the distance to the training states (does
 either say *where* the networks are wrong?). For the FEM–ML runs also the spread's calibration:
 median error / spread, as measured and scaled by the scale of the run's own networks on their
-held-out trajectories (``analysis/calibration.py``); and for the problems' FEM–ML runs the same
-networks driven along the reference's strain histories (no FEM): the spread's rank correlation
-with that error, the material's alone, and its median after the peak beside the run's.
+held-out trajectories (``analysis/calibration.py``). Rows "driven <problem>": the same networks
+driven along the reference's strain histories, no FEM (``drivers.fem_ml.run_along_reference``, rule
+problem_fem_ml_driven): their error is the material's alone, FEM–ML's also the field's.
 
     .venv/bin/snakemake -j2 all                       # the pipeline: datasets, networks, references
     .venv/bin/python bench/bench_trainings.py --seeds 1
@@ -39,7 +39,7 @@ from granular_multiscale.analysis.problem_surrogate import (comparison_table, fi
 from granular_multiscale.config import problem_adaptive_config
 from granular_multiscale.data import read_run, write_run
 from granular_multiscale.drivers.adaptive import run_adaptive
-from granular_multiscale.drivers.fem_ml import run_fem_ml
+from granular_multiscale.drivers.fem_ml import run_along_reference, run_fem_ml
 from granular_multiscale.fem import make_problem
 from granular_multiscale.novelty import TrainingStates
 from granular_multiscale.plan import WEAK_ZONE_ROUND, Plan
@@ -47,7 +47,7 @@ from granular_multiscale.surrogate.dataset import read_dataset
 from granular_multiscale.surrogate.models import SurrogateModel
 from granular_multiscale.surrogate.training import heldout_spread_scale, train
 
-from common import bench_parser, curve_error_pct, driven_response, require_files, run_folder
+from common import bench_parser, curve_error_pct, require_files, run_folder
 
 ROUNDS = {"": "the specimen's", WEAK_ZONE_ROUND: "the weak zone's"}
 
@@ -78,7 +78,8 @@ def train_networks(plan: Plan, seed: int, folder: Path, logger) -> dict[str, dic
 def runs_of(plan: Plan, models: dict | None, folder: Path, workers: int, logger) -> list[tuple[str, str, Path]]:
     """[(what, problem, run file)] of one training (problem "triaxial": the validation path): the
     pipeline's files for training 0 (`models` None), else runs made here with `models` under
-    `folder` (reused when they exist). Each problem's first load path."""
+    `folder` (reused when they exist). Each problem's first load path, FEM–ML also driven along its
+    reference's strains."""
     config, L = plan.config, plan.layout
     tangent = config["surrogate"]["tangent"]
     path = plan.validation_path
@@ -86,8 +87,9 @@ def runs_of(plan: Plan, models: dict | None, folder: Path, workers: int, logger)
     adaptive = "biaxial" in cases and plan.problem_adaptive
     if models is None:
         runs = [(f"FEM–ML {path}", "triaxial", Path(L.fem_ml(path)))]
-        runs += [(f"FEM–ML {problem}", problem, Path(L.problem_run(problem, "fem_ml", case)))
-                 for problem, case in cases.items()]
+        for problem, case in cases.items():
+            runs += [(f"FEM–ML {problem}", problem, Path(L.problem_run(problem, "fem_ml", case))),
+                     (f"driven {problem}", problem, Path(L.problem_run(problem, "fem_ml_driven", case)))]
         if adaptive:
             runs.append(("adaptive biaxial", "biaxial",
                          Path(L.problem_run("biaxial", plan.problem_adaptive_method, cases["biaxial"]))))
@@ -109,9 +111,16 @@ def runs_of(plan: Plan, models: dict | None, folder: Path, workers: int, logger)
             allow_partial=True, problem=problem, weak_zone_models=weak_models), file, config)
 
     made(f"FEM–ML {path}", "triaxial", folder / "fem_ml" / f"{path}.h5", fem_ml("triaxial", path, None))
+    def driven(problem: str, case: str, weak_models):
+        return lambda file: write_run(run_along_reference(
+            config, read_run(plan.problem_run(problem, case)), specimen["sigma"], specimen["tangent"], tangent, problem,
+            weak_zone_models=weak_models, logger=logger), file, config)
+
     for problem, case in cases.items():
-        made(f"FEM–ML {problem}", problem, folder / problem / "fem_ml" / f"{case}.h5",
-             fem_ml(problem, case, weak if problem == "biaxial" else None))
+        weak_models = weak if problem == "biaxial" else None
+        made(f"FEM–ML {problem}", problem, folder / problem / "fem_ml" / f"{case}.h5", fem_ml(problem, case, weak_models))
+        made(f"driven {problem}", problem, folder / problem / "fem_ml_driven" / f"{case}.h5",
+             driven(problem, case, weak_models))
     if adaptive:
         case = cases["biaxial"]
         biaxial_config, threshold = problem_adaptive_config(config, "biaxial")
@@ -143,26 +152,6 @@ def training_distance(run, zones) -> np.ndarray:
         states = TrainingStates(model.training_states, radius=model.training_radius)
         distance[:, points] = states.distance(run_features(run, model.history)[:, points]) / states.radius
     return distance
-
-
-def along_reference_strains(reference, run, zones) -> dict:
-    """The run's networks (the weak zone's at zone 1) driven along the reference's strain histories,
-    no FEM: their error there is the material's alone, where FEM–ML's also holds the field's (a band
-    in another place). Spearman's ρ between their spread and that error, and the median of the error
-    against the run's own, after the peak as in :func:`rank_correlation_after_peak`."""
-    strain = reference["strain"].transpose("step", "gp", "comp").values
-    p0 = float(reference.attrs["confining_pressure_Pa"])
-    stress, spread = np.empty_like(strain), np.empty(strain.shape[:2])
-    for file, points in networks_by_zone(run, zones):
-        stress[:, points], spread[:, points] = driven_response(file, strain[:, points], p0)
-    driven = reference.copy()
-    driven["stress"] = (("step", "gp", "comp"), stress)
-    after = slice(first_step_after_peak(reference), None)
-    return {"along the reference's strains: spread–error rank correlation (after the peak)":
-                rank_correlation_after_peak(reference, driven, spread),
-            "along the reference's strains: median stress error after the peak (p0)":
-                float(np.median(stress_errors(reference, driven)[after])) / p0,
-            "median stress error after the peak (p0)": float(np.median(stress_errors(reference, run)[after])) / p0}
 
 
 @functools.lru_cache(maxsize=None)
@@ -198,9 +187,11 @@ def compare(plan: Plan, problem: str, file: Path) -> dict:
     reference = read_run(plan.problem_run(problem, plan.problem_cases[problem][0]))
     row = comparison_table(reference, {"run": run}).iloc[0].drop("run").to_dict()
     zones = make_problem(plan.config, problem).zones()
+    after = slice(first_step_after_peak(reference), None)
+    row["median stress error after the peak (p0)"] = float(np.median(stress_errors(reference, run)[after])) / float(
+        reference.attrs["confining_pressure_Pa"])
     if fem_ml:
         row.update(scaled_calibration(plan, run, reference))
-        row.update(along_reference_strains(reference, run, zones))
     row["distance–error rank correlation (after the peak)"] = rank_correlation_after_peak(
         reference, run, training_distance(run, zones))
     return row

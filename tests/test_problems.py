@@ -119,6 +119,94 @@ def test_footing_half_domain_equals_the_full_domain(tmp_path):
     assert half.footing_pressure.values[-1] > 3 * P0  # several times the surcharge at 6 % of B
 
 
+def test_the_load_force_in_virtual_work_is_the_reaction_in_equilibrium_and_weighs_every_point(tmp_path):
+    """The virtual field is the elastic one of a unit platen displacement: on the biaxial specimen
+    with smooth platens the homogeneous v_z = z/H, 1 at the loaded dofs, 0 at the fixed ones. At every
+    converged state of the softening biaxial and footing runs the force in virtual work is the run's
+    reaction (to the Newton tolerance). A stress change at one point away from the loaded boundary
+    leaves the reaction at the loaded dofs alone and moves the virtual-work force by exactly
+    dV · ε(v)·δσ there."""
+    from granular_multiscale.fem.assembly import ENGINEERING_FACTOR
+
+    problem = BiaxialProblem(size=(0.05, 0.1), elements=(3, 6), weak_zone=None)
+    v = problem.virtual_load_field()
+    z = problem.ops.mesh_node_positions[:, 1]
+    np.testing.assert_allclose(v[problem.ops.node_dofs(np.arange(problem.ops.n_nodes), 1)], z / 0.1, atol=1e-12)
+    assert np.all(v[problem.loaded_dofs] == 1.0) and np.all(v[problem.fixed_dofs] == 0.0)
+
+    config = softening_config(tmp_path, biaxial={"elements": [3, 6]},
+                              footing={"load_paths": {"f": {"segments": [[4, 0.04]]}}})
+    stresses = {}
+    for name, path in (("biaxial", "biaxial"), ("footing", "f")):
+        run = run_fem_reference(config, path, tmp_path / f"{name}.h5", problem=name)
+        problem = make_problem(config, name)
+        stresses[name] = run.stress.transpose("step", "gp", "comp").values
+        in_virtual_work = np.array([problem.load_force_in_virtual_work(s) for s in stresses[name]])
+        force = run.load_force.values
+        assert np.abs(in_virtual_work - force).max() < config["newton"]["tolerance"] * np.abs(force).max(), name
+
+    problem = make_problem(config, "biaxial")
+    sigma = stresses["biaxial"][-1]
+    lowest = int(np.argmin(problem.gp_positions[:, 2]))  # the Gauss point nearest the fixed bottom
+    bump = np.zeros_like(sigma)
+    bump[lowest, 2] = 1e4
+    reaction = lambda s: problem.load_force(problem.ops.internal_force(s) - problem.f_ext)  # noqa: E731
+    assert reaction(sigma + bump) == pytest.approx(reaction(sigma), rel=1e-14)  # it touches no loaded dof
+    strain_of_v = problem.ops.strain(problem.virtual_load_field())[lowest] * ENGINEERING_FACTOR
+    expected = -problem.ops.dV.ravel()[lowest] * strain_of_v @ bump[lowest]
+    change = problem.load_force_in_virtual_work(sigma + bump) - problem.load_force_in_virtual_work(sigma)
+    assert change == pytest.approx(expected, rel=1e-9) and abs(change) > 1e-3 * 1e4 * problem.ops.dV.ravel()[lowest]
+
+
+def test_the_networks_along_a_runs_own_strains_give_back_that_run(tmp_path):
+    """FEM–ML's networks driven along the strains of FEM–ML's own biaxial run (no FEM) answer its
+    stresses and, in virtual work, its platen force (to its Newton tolerance): so against a FEM–DEM
+    reference the driven run's error is the material's alone. Its file keeps the reference's
+    kinematics and says it ran no Newton and no DEM; a reference on another mesh is refused."""
+    import torch
+
+    from granular_multiscale.analysis.problem_surrogate import comparison_table
+    from granular_multiscale.data import write_run
+    from granular_multiscale.drivers.fem_ml import run_along_reference, run_fem_ml
+    from granular_multiscale.materials.elastoplastic import Elastoplastic
+    from granular_multiscale.paths import load_paths_from_config
+    from granular_multiscale.surrogate.dataset import build_dataset
+    from granular_multiscale.surrogate.synthetic import material_point_run, triaxial_strain_paths
+    from granular_multiscale.surrogate.training import train
+
+    torch.set_num_threads(1)
+    config = tiny_config(tmp_path / "o", {"path1": [[2, 0.002]]})
+    config["biaxial"]["load_paths"] = {"p": {"segments": [[3, 0.006]]}}
+    config["surrogate"].update(newton={}, ensemble_size=2, epochs=150, learning_rate=5e-3, batch_size=256)
+    path = load_paths_from_config(config)["path1"]
+    run = material_point_run(Elastoplastic.from_config(12, config), triaxial_strain_paths(path, 12, seed=2), path)
+    sigma, _, _ = train(*build_dataset(run, 0.75, seed=0), "sigma", config["surrogate"], seed=0, config=config)
+    sigma.save(tmp_path / "sigma.pt")
+    ml = run_fem_ml(config, "p", tmp_path / "sigma.pt", None, "autodiff", progress=False, problem="biaxial")
+    assert int(ml.cutbacks.sum()) == 0  # one commit per step, as the driven run makes
+
+    driven = run_along_reference(config, ml, tmp_path / "sigma.pt", None, "autodiff", "biaxial")
+    write_run(driven, tmp_path / "driven.h5", config)
+    driven = read_run(tmp_path / "driven.h5")
+    np.testing.assert_allclose(driven.stress.values, ml.stress.values, rtol=0, atol=1e-9 * np.abs(ml.stress.values).max())
+    np.testing.assert_allclose(driven.stress_spread.values, ml.stress_spread.values, rtol=1e-9, atol=1e-6)
+    tolerance = config["surrogate"]["newton"].get("tolerance", config["newton"]["tolerance"])
+    force = ml.load_force.values
+    assert np.abs(driven.load_force.values - force).max() < tolerance * np.abs(force).max()
+    np.testing.assert_array_equal(driven.top_force.values, -driven.load_force.values)
+    for name in ("strain", "displacement", "volumetric_strain", "axial_strain", "lateral_strain"):
+        np.testing.assert_array_equal(driven[name].values, ml[name].values, err_msg=name)
+    assert driven.attrs["method"] == "fem_ml_driven_autodiff" and driven.attrs["driven_along"] == "fem_ml_autodiff"
+    assert driven.newton_iterations.values.sum() == 0 and driven.attrs["dem_particle_steps"] == 0
+    row = comparison_table(ml, {"driven": driven}).set_index("run").loc["driven"]
+    assert row["force: largest error (% of peak)"] < 100 * tolerance
+    assert row["volumetric strain: largest error (% of its peak)"] == 0
+
+    config["biaxial"]["elements"] = [3, 6]
+    with pytest.raises(ValueError, match="not on the mesh of the config's 'biaxial' section"):
+        run_along_reference(config, ml, tmp_path / "sigma.pt", None, "autodiff", "biaxial")
+
+
 # ------------------------------------------------------------------------ localisation
 def test_biaxial_localises_in_a_band_from_the_weak_zone(tmp_path):
     """Softening model, 3 × 6 quad8, config/tiny.yaml's path (to 7 %): with the weak zone a band

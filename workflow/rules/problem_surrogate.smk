@@ -5,6 +5,9 @@
 #                             biaxial test's weak zone, with surrogate.weak_zone_sources); a run that
 #                             stops keeps its converged steps (completed = 0) and the table says
 #                             where it stopped
+#   problem_fem_ml_driven     {OUT}/{problem}/fem_ml_driven/{case}.h5: the same networks driven along the
+#                             reference run's strain histories, no FEM: the material's share of FEM–ML's
+#                             error (its force from the networks' stresses in virtual work)
 #   problem_adaptive          {OUT}/{problem}/adaptive/{case}.h5 (the problem's section, key adaptive:
 #                             threshold, indicator, ...; the weak zone's points are anchors) and its DEM
 #                             answers under dem_points/
@@ -45,6 +48,24 @@ use rule fem_ml as problem_fem_ml with:
         allow_partial=True,
         problem=lambda wc: wc.problem,
         path_name=lambda wc: wc.case,
+
+
+rule problem_fem_ml_driven:
+    input:
+        unpack(lambda wc: {"reference": PLAN.problem_run(wc.problem, wc.case), "sigma": L.model("sigma"),
+                           "tangent": L.model("tangent"), **PLAN.weak_zone_models(wc.problem)}),
+    output:
+        L.problem_run("{problem}", "fem_ml_driven", "{case}"),
+    log:
+        L.log("{problem}/fem_ml_driven/{case}"),
+    benchmark:
+        L.benchmark("{problem}/fem_ml_driven/{case}")
+    params:
+        tangent=config["surrogate"]["tangent"],
+        depends=lambda wc: PLAN.problem_surrogate_definition(wc.problem),
+    threads: SURROGATE_THREADS
+    script:
+        "../../scripts/run_fem_ml_driven.py"
 
 
 use rule adaptive as problem_adaptive with:

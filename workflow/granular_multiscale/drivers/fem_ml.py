@@ -27,16 +27,19 @@ from __future__ import annotations
 import copy
 import logging
 import math
+import time
 from pathlib import Path
 
 import numpy as np
 import torch
 import xarray as xr
 
+from ..data import tangent_variables
 from ..fem.newton import ConvergenceError
 from ..materials.base import MaterialPointSet
 from ..materials.wrappers import IsotropicPrestrain, ZonedSurrogate
 from ..surrogate.material import SurrogateMaterial, relative_spread, spread_floor
+from ..tensors import TCOMP36
 from .problems import problem_and_path
 
 
@@ -70,19 +73,7 @@ def run_fem_ml(
     logger = logger or logging.getLogger("granular_multiscale.fem_ml")
     config = fem_ml_config(config)
     bvp, load_path = problem_and_path(config, problem, path_name)
-    zones = bvp.zones()
-    if zones.any() and weak_zone_models:
-        material = ZonedSurrogate(
-            [surrogate_material(config, int((zones == k).sum()), models["sigma"], models["tangent"], tangent, logger)
-             for k, models in enumerate(({"sigma": sigma_model, "tangent": tangent_model}, weak_zone_models))],
-            zones)
-        logger.info("FEM–ML %s %s: the %d points of the weak zone get its own networks (NNσ %s)", problem, path_name,
-                    int(zones.sum()), weak_zone_models["sigma"])
-    else:
-        if zones.any():
-            logger.warning("FEM–ML %s %s: no networks of the weak zone (surrogate.weak_zone_sources); its %d points "
-                           "get the specimen's", problem, path_name, int(zones.sum()))
-        material = surrogate_material(config, bvp.n_material_points, sigma_model, tangent_model, tangent, logger)
+    material = problem_surrogate_material(config, bvp, sigma_model, tangent_model, tangent, weak_zone_models, logger)
     logger.info(
         "FEM–ML %s %s: %d Gauss points (%d material points), %s, tangent %s, NNσ %s%s (ensemble of %d); "
         "Newton tolerance %g, %d iterations",
@@ -102,6 +93,102 @@ def run_fem_ml(
         steps = int((ds["out_of_range_points"] > 0).sum())
         logger.warning("FEM–ML %s: inputs outside the training range at %d steps (at most %d Gauss points)",
                        path_name, steps, n_out)
+    return ds
+
+
+def problem_surrogate_material(config: dict, bvp, sigma_model, tangent_model, tangent: str,
+                               weak_zone_models: dict | None = None,
+                               logger: logging.Logger | None = None) -> MaterialPointSet:
+    """The networks at the material points of the problem `bvp` (config as :func:`fem_ml_config`
+    makes it): a weak zone gets the networks of `weak_zone_models` ({"sigma": file, "tangent": file},
+    trained on RVEs of the weak packing); without them it gets the specimen's (a warning says so)."""
+    logger = logger or logging.getLogger("granular_multiscale.fem_ml")
+    zones = bvp.zones()
+    if zones.any() and weak_zone_models:
+        logger.info("%s: the %d points of the weak zone get its own networks (NNσ %s)", bvp.name, int(zones.sum()),
+                    weak_zone_models["sigma"])
+        return ZonedSurrogate(
+            [surrogate_material(config, int((zones == k).sum()), models["sigma"], models["tangent"], tangent, logger)
+             for k, models in enumerate(({"sigma": sigma_model, "tangent": tangent_model}, weak_zone_models))],
+            zones)
+    if zones.any():
+        logger.warning("%s: no networks of the weak zone (surrogate.weak_zone_sources); its %d points get the "
+                       "specimen's", bvp.name, int(zones.sum()))
+    return surrogate_material(config, bvp.n_material_points, sigma_model, tangent_model, tangent, logger)
+
+
+#: the variables of a reference run that the networks driven along its strains keep: its kinematics
+DRIVEN_KEEPS = ("strain", "history", "gp_position", "node_position", "element_vertices", "displacement",
+                "load_displacement", "volumetric_strain", "phase", "axial_strain", "lateral_strain",
+                "settlement_ratio")
+#: attributes of the reference that describe how it was solved, not the problem: not kept
+DRIVEN_DROPS = ("method", "config", "completed", "material_points", "dem_", "time_", "total_", "newton_", "tangent_")
+
+
+def run_along_reference(config: dict, reference: xr.Dataset, sigma_model, tangent_model, tangent: str,
+                        problem: str, weak_zone_models: dict | None = None,
+                        logger: logging.Logger | None = None) -> xr.Dataset:
+    """FEM–ML's material (:func:`problem_surrogate_material`: the same networks, weak zone and
+    pressure handling as :func:`run_fem_ml`) driven along the strain histories of the `reference` run
+    of `problem`, one commit per load step, with no FEM.
+
+    FEM–ML's error holds the material's error and that of the field it converges to (a band that
+    forms earlier or elsewhere); this run holds the material's alone. Its file is the reference's
+    kinematics (:data:`DRIVEN_KEEPS`: strains, displacements, volumetric strain, the load measure)
+    with the networks' stress, tangent and ensemble spread, and the forces those stresses carry in
+    virtual work (``load_force_in_virtual_work``: every point weighed by how much a load of the
+    boundary strains it): measured against the reference like any run, its force error is the
+    material's share of FEM–ML's, in the measure of the force goals. Method
+    ``fem_ml_driven_<tangent>``; no Newton iterations, no DEM."""
+    logger = logger or logging.getLogger("granular_multiscale.fem_ml")
+    config = fem_ml_config(config)
+    bvp, _ = problem_and_path(config, problem, str(reference.attrs.get("load_path", "")))
+    if bvp.uniform_field or reference.sizes["gp"] != bvp.n_gauss_points or not np.allclose(
+            reference["gp_position"].values, bvp.gp_positions, atol=1e-9):
+        raise ValueError(f"the reference run of {problem} ({reference.sizes['gp']} Gauss points) is not on the "
+                         f"mesh of the config's '{problem}' section ({bvp.n_gauss_points} points"
+                         f"{', uniform_field' if bvp.uniform_field else ''})")
+    material = problem_surrogate_material(config, bvp, sigma_model, tangent_model, tangent, weak_zone_models, logger)
+    strain = reference["strain"].transpose("step", "gp", "comp").values
+    n_steps = strain.shape[0]
+    stress, tangents, wall = np.empty_like(strain), [], np.empty(n_steps)
+    load_force = np.empty(n_steps)
+    with material:
+        for step in range(n_steps):
+            t0 = time.perf_counter()
+            stress[step], D = material.evaluate(strain[step])
+            material.commit(strain[step])
+            tangents.append(D)
+            load_force[step] = bvp.load_force_in_virtual_work(stress[step])
+            wall[step] = time.perf_counter() - t0
+    forces = {"load_force": load_force, **{name: np.array([bvp.force_observables(f)[name] for f in load_force])
+                                           for name in bvp.force_observables(0.0)}}
+    tangent_vars, tangent_attrs = tangent_variables(tangents, "along the reference's strains, no FEM")
+    kept = reference[[name for name in DRIVEN_KEEPS if name in reference]]
+    ds = kept.assign({
+        "stress": (("step", "gp", "comp"), stress, {"units": "Pa", "description": "Cauchy stress of the networks "
+                                                    "at the reference's strain, tension positive"}),
+        **{name: (dims, values, {"units": units, "description": description})
+           for name, (dims, values, units, description) in tangent_vars.items()},
+        **{name: ("step", values, {**reference[name].attrs, "description": reference[name].attrs.get("description", name)
+                                   + "; of the networks' stresses in virtual work (they are not in equilibrium)"})
+           for name, values in forces.items()},
+        "newton_iterations": ("step", np.zeros(n_steps, dtype=np.int64), {"description": "no FEM: 0"}),
+        "cutbacks": ("step", np.zeros(n_steps, dtype=np.int64), {"description": "no FEM: 0"}),
+        "wall_time": ("step", wall, {"units": "s", "description": "wall time of the step"}),
+    })
+    if "tangent_full" in ds:
+        ds = ds.assign_coords(tcomp36=list(TCOMP36))
+    ds = ds.assign(spread_variables(material, ds))
+    ds.attrs = {key: value for key, value in reference.attrs.items() if not key.startswith(DRIVEN_DROPS)}
+    ds.attrs.update({**tangent_attrs, **surrogate_attributes(material, sigma_model, tangent_model),
+                     "method": f"fem_ml_driven_{tangent}", "driven_along": str(reference.attrs.get("method", "")),
+                     "material_points": int(material.n_points), "completed": 1, "dem_particle_steps": 0.0,
+                     "time_run_s": float(wall.sum())})
+    if isinstance(material, ZonedSurrogate):
+        ds.attrs["surrogate_weak_zone_sigma_model"] = str(weak_zone_models["sigma"])
+    logger.info("%s: the networks along the %d steps of the reference's strains (%s), no FEM: %.2f s", problem,
+                n_steps - 1, ds.attrs["driven_along"], wall.sum())
     return ds
 
 

@@ -167,14 +167,15 @@ class BiaxialProblem(BoundaryValueProblem):
     def check_load_path(self, load_path) -> None:
         check_compression_path(self.config_section, load_path, self.MAX_AXIAL_STRAIN)
 
-    def top_force(self, residual: np.ndarray) -> float:
-        return float(residual[self.top_dofs].sum())
-
     def observables(self, load: float, result: Converged) -> dict[str, float]:
         u = result.u
         ux = self.ops.node_dofs
         lateral = float(np.mean(u[ux(self.faces["right"], 0)]) - np.mean(u[ux(self.faces["left"], 0)])) / self.size[0]
-        return {"axial_strain": load, "top_force": self.top_force(result.residual), "lateral_strain": lateral}
+        return {"axial_strain": load, **self.force_observables(self.load_force(result.residual)),
+                "lateral_strain": lateral}
+
+    def force_observables(self, load_force: float) -> dict[str, float]:
+        return {"top_force": -load_force}
 
     def load_force_meaning(self) -> dict[str, str]:
         return {"units": "N/m", "description": "platen reaction per metre of thickness, compression positive "

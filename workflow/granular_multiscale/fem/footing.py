@@ -117,7 +117,10 @@ class FootingProblem(BoundaryValueProblem):
         check_compression_path(self.config_section, load_path, self.MAX_SETTLEMENT)
 
     def observables(self, load: float, result: Converged) -> dict[str, float]:
-        return {"settlement_ratio": load, "footing_pressure": self.load_force(result.residual) / self.width}
+        return {"settlement_ratio": load, **self.force_observables(self.load_force(result.residual))}
+
+    def force_observables(self, load_force: float) -> dict[str, float]:
+        return {"footing_pressure": load_force / self.width}
 
     def load_force_meaning(self) -> dict[str, str]:
         half = " (x 2: the half domain models half of it)" if self.symmetry == "half" else ""

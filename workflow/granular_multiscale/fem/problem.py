@@ -47,6 +47,7 @@ import xarray as xr
 from .. import checkpoint as checkpoints, integrity
 from ..materials.wrappers import TangentRepair, UniformField
 from ..paths import LoadPath
+from ..tensors import isotropic_elastic_tangent
 from .assembly import GaussPointOperators
 from .newton import Converged, ConvergenceError, DirichletSystem, NewtonSettings, StepFailed, Timers, newton_solve
 from .recorder import RunRecorder
@@ -106,6 +107,7 @@ class BoundaryValueProblem:
         self.force_factor = float(force_factor)
         self.system = DirichletSystem(ops, np.concatenate([self.fixed_dofs, self.loaded_dofs]))
         self._gp_positions = ops.gauss_point_positions()
+        self._virtual_load_field: np.ndarray | None = None  # load_force_in_virtual_work builds it once
 
     # -- what a subclass says about itself ----------------------------------------------------
     def definition(self) -> dict:
@@ -118,6 +120,10 @@ class BoundaryValueProblem:
 
     def observables(self, load: float, result: Converged) -> dict[str, float]:
         """Per-step values of :attr:`OBSERVABLES` at a converged state."""
+        return {}
+
+    def force_observables(self, load_force: float) -> dict[str, float]:
+        """Those of :meth:`observables` that follow from the load force (top_force, footing_pressure)."""
         return {}
 
     def observable_meanings(self) -> dict[str, tuple[str, str]]:
@@ -171,6 +177,30 @@ class BoundaryValueProblem:
         """Reaction of the loaded boundary along the load, compression positive: −Σ (f_int − f_ext)
         over the loaded dofs, for the whole body (× ``force_factor`` with a symmetry reduction)."""
         return -self.force_factor * float(residual[self.loaded_dofs].sum())
+
+    def load_force_in_virtual_work(self, stress: np.ndarray) -> float:
+        """The load force (as :meth:`load_force`) that Gauss-point stresses [n_gp, 6] carry in virtual
+        work: −v·(f_int(σ) − f_ext) with the virtual displacement v of :meth:`virtual_load_field`.
+
+        For stresses in equilibrium (a converged state) it is the reaction itself, whatever v: the
+        residual vanishes at the free dofs and v is 1 at the loaded dofs, 0 at the fixed ones. For
+        stresses that are not (a material driven along another run's strains, with no FEM) the
+        reaction at the loaded dofs alone would weigh only the elements that touch them; v weighs
+        every point by how much a load of the boundary strains it."""
+        if self._virtual_load_field is None:
+            self._virtual_load_field = self.virtual_load_field()
+        residual = self.ops.internal_force(stress) - self.f_ext
+        return -self.force_factor * float(self._virtual_load_field @ residual)
+
+    def virtual_load_field(self) -> np.ndarray:
+        """[n_dofs] the displacement of an isotropic linear elastic body (ν = 0.3) whose loaded dofs
+        move by 1 along the load, the fixed ones not at all (the problem's boundary conditions)."""
+        elastic = isotropic_elastic_tangent(1.0, 0.3)
+        K = self.ops.stiffness_data(np.broadcast_to(elastic, (self.n_gauss_points, 6, 6)))
+        prescribed = np.zeros(self.ops.n_dofs)
+        prescribed[self.system.constrained] = self.prescribed_values(1.0)
+        u = prescribed + self.system.solve(K, -(self.ops.csr(K) @ prescribed))
+        return u / -self.load_length  # prescribed_values(1.0) moves the loaded dofs by −load_length
 
     def volumetric_strain(self, strain: np.ndarray) -> float:
         """Volume change / volume (tension positive), = mean trace of ε (area change in plane strain)."""

@@ -143,13 +143,13 @@ class TriaxialProblem(BoundaryValueProblem):
         )
 
     # -- what the triaxial test reports ------------------------------------------------------
-    def top_force(self, residual: np.ndarray) -> float:
-        """Platen reaction of the full specimen in N, tension positive: Σ over the top nodes of
-        (f_int − f_ext)_z (× 4 with quarter symmetry)."""
-        return self.force_factor * float(residual[self.top_dofs].sum())
-
     def observables(self, load: float, result: Converged) -> dict[str, float]:
-        return {"axial_strain": load, "top_force": self.top_force(result.residual)}
+        return {"axial_strain": load, **self.force_observables(self.load_force(result.residual))}
+
+    def force_observables(self, load_force: float) -> dict[str, float]:
+        """top_force: the platen reaction of the full specimen in N, tension positive (Σ over the top
+        nodes of (f_int − f_ext)_z, × 4 with quarter symmetry): −load_force."""
+        return {"top_force": -load_force}
 
     def definition(self) -> dict:
         return {
