@@ -13,7 +13,9 @@ either say *where* the networks are wrong?). For the FEM–ML runs also the spre
 median error / spread, as measured and scaled by the scale of the run's own networks on their
 held-out trajectories (``analysis/calibration.py``). Rows "driven <problem>": the same networks
 driven along the reference's strain histories, no FEM (``drivers.fem_ml.run_along_reference``, rule
-problem_fem_ml_driven): their error is the material's alone, FEM–ML's also the field's.
+problem_fem_ml_driven): their error is the material's alone, FEM–ML's also the field's. Rows
+"as reference <problem>": FEM–ML solved with the reference's Newton settings and ND's tangent
+(rule problem_fem_ml_as_reference).
 
     .venv/bin/snakemake -j2 all                       # the pipeline: datasets, networks, references
     .venv/bin/python bench/bench_trainings.py --seeds 1
@@ -50,6 +52,8 @@ from granular_multiscale.surrogate.training import heldout_spread_scale, train
 from common import bench_parser, curve_error_pct, require_files, run_folder
 
 ROUNDS = {"": "the specimen's", WEAK_ZONE_ROUND: "the weak zone's"}
+#: a training's runs of each problem: {row name: run folder}
+PROBLEM_RUNS = {"FEM–ML": "fem_ml", "as reference": "fem_ml_as_reference", "driven": "fem_ml_driven"}
 
 
 def train_networks(plan: Plan, seed: int, folder: Path, logger) -> dict[str, dict[str, Path]]:
@@ -88,8 +92,8 @@ def runs_of(plan: Plan, models: dict | None, folder: Path, workers: int, logger)
     if models is None:
         runs = [(f"FEM–ML {path}", "triaxial", Path(L.fem_ml(path)))]
         for problem, case in cases.items():
-            runs += [(f"FEM–ML {problem}", problem, Path(L.problem_run(problem, "fem_ml", case))),
-                     (f"driven {problem}", problem, Path(L.problem_run(problem, "fem_ml_driven", case)))]
+            runs += [(f"{what} {problem}", problem, Path(L.problem_run(problem, folder_name, case)))
+                     for what, folder_name in PROBLEM_RUNS.items()]
         if adaptive:
             runs.append(("adaptive biaxial", "biaxial",
                          Path(L.problem_run("biaxial", plan.problem_adaptive_method, cases["biaxial"]))))
@@ -105,22 +109,24 @@ def runs_of(plan: Plan, models: dict | None, folder: Path, workers: int, logger)
             print(f"{what}: {time.perf_counter() - t0:.0f} s", flush=True)
         runs.append((what, problem, file))
 
-    def fem_ml(problem: str, case: str, weak_models):
+    def fem_ml(problem: str, case: str, weak_models, tangent=tangent, solver="fem_ml"):
         return lambda file: write_run(run_fem_ml(
             config, case, specimen["sigma"], specimen["tangent"], tangent, logger=logger, progress=False,
-            allow_partial=True, problem=problem, weak_zone_models=weak_models), file, config)
+            allow_partial=True, problem=problem, weak_zone_models=weak_models, solver=solver), file, config)
 
-    made(f"FEM–ML {path}", "triaxial", folder / "fem_ml" / f"{path}.h5", fem_ml("triaxial", path, None))
     def driven(problem: str, case: str, weak_models):
         return lambda file: write_run(run_along_reference(
             config, read_run(plan.problem_run(problem, case)), specimen["sigma"], specimen["tangent"], tangent, problem,
             weak_zone_models=weak_models, logger=logger), file, config)
 
+    made(f"FEM–ML {path}", "triaxial", folder / "fem_ml" / f"{path}.h5", fem_ml("triaxial", path, None))
     for problem, case in cases.items():
         weak_models = weak if problem == "biaxial" else None
-        made(f"FEM–ML {problem}", problem, folder / problem / "fem_ml" / f"{case}.h5", fem_ml(problem, case, weak_models))
-        made(f"driven {problem}", problem, folder / problem / "fem_ml_driven" / f"{case}.h5",
-             driven(problem, case, weak_models))
+        make = {"fem_ml": fem_ml(problem, case, weak_models),
+                "fem_ml_as_reference": fem_ml(problem, case, weak_models, "nn", "reference"),
+                "fem_ml_driven": driven(problem, case, weak_models)}
+        for what, folder_name in PROBLEM_RUNS.items():
+            made(f"{what} {problem}", problem, folder / problem / folder_name / f"{case}.h5", make[folder_name])
     if adaptive:
         case = cases["biaxial"]
         biaxial_config, threshold = problem_adaptive_config(config, "biaxial")

@@ -101,14 +101,15 @@ def test_labels_and_run_sets_of_the_products():
 
 
 def test_the_surrogate_on_the_problems_beside_its_controls():
-    """Default scale: per problem the reference, FEM–ML, its networks along the reference's strains,
-    the analytic model alone, the adaptive run (biaxial: no promotions, DEM at the weak zone only;
+    """Default scale: per problem the reference, FEM–ML, FEM–ML solved as the reference is, its networks
+    along the reference's strains, the analytic model alone, the adaptive run (biaxial: no promotions, DEM at the weak zone only;
     footing: promoted by the distance to the training data) and its control, and the products of
     each; the tiny scale (no adaptive report) keeps the runs without DEM."""
     plan = plan_of("config.yaml")
     assert list(plan.problem_comparison("biaxial", "biaxial").items()) == [
         ("FEM–DEM (400 spheres)", "out/biaxial/fem_dem/biaxial.h5"),
         ("FEM–ML (autodiff tangent)", "out/biaxial/fem_ml/biaxial.h5"),
+        ("FEM–ML solved as the reference (its Newton settings, ND tangent)", "out/biaxial/fem_ml_as_reference/biaxial.h5"),
         ("FEM–ML's networks along the reference's strains (no FEM)", "out/biaxial/fem_ml_driven/biaxial.h5"),
         ("FEM, elastoplastic model fitted to Path1 (no networks)", "out/biaxial/fem_elastoplastic/biaxial.h5"),
         ("adaptive FEM–DEM–ML, no promotions (DEM at the anchors)", "out/biaxial/adaptive/biaxial.h5"),
@@ -138,7 +139,7 @@ def test_the_surrogate_on_the_problems_beside_its_controls():
     # they are target problem_adaptive_runs
     assert plan.problem_adaptive
     off = plan_of("config.yaml", adaptive={"report": True, "problems": False}, biaxial={"adaptive": {"threshold": 0.02}})
-    assert not off.problem_adaptive and len(off.problem_comparison("biaxial", "biaxial")) == 4
+    assert not off.problem_adaptive and len(off.problem_comparison("biaxial", "biaxial")) == 5
     assert list(off.problem_adaptive_runs("biaxial", "biaxial").items()) == [
         ("adaptive FEM–DEM–ML, threshold 0.02", "out/biaxial/adaptive/biaxial.h5"),
         ("control: elastoplastic model fitted to Path1 + the same DEM points", "out/biaxial/control_elastoplastic/biaxial.h5")]
@@ -149,11 +150,12 @@ def test_the_surrogate_on_the_problems_beside_its_controls():
         "control: elastic model + the same DEM points", "control: elastoplastic model fitted to Path1 + the same DEM points"]
     tiny = plan_of("config.yaml", "tiny.yaml")
     assert list(tiny.problem_comparison("footing", "footing").values()) == [
-        "out/footing/fem_dem/footing.h5", "out/footing/fem_ml/footing.h5", "out/footing/fem_ml_driven/footing.h5",
-        "out/footing/fem_elastoplastic/footing.h5"]
+        "out/footing/fem_dem/footing.h5", "out/footing/fem_ml/footing.h5", "out/footing/fem_ml_as_reference/footing.h5",
+        "out/footing/fem_ml_driven/footing.h5", "out/footing/fem_elastoplastic/footing.h5"]
     elastoplastic = plan_of("config.yaml", reference_material="elastoplastic")
     assert list(elastoplastic.problem_comparison("biaxial", "biaxial").values()) == [
-        "out/biaxial/fem_elastoplastic/biaxial.h5", "out/biaxial/fem_ml/biaxial.h5", "out/biaxial/fem_ml_driven/biaxial.h5"]
+        "out/biaxial/fem_elastoplastic/biaxial.h5", "out/biaxial/fem_ml/biaxial.h5",
+        "out/biaxial/fem_ml_as_reference/biaxial.h5", "out/biaxial/fem_ml_driven/biaxial.h5"]
 
 
 def test_rerun_triggers_hold_what_changes_a_result_and_nothing_else():

@@ -162,12 +162,15 @@ def test_the_networks_along_a_runs_own_strains_give_back_that_run(tmp_path):
     """FEM–ML's networks driven along the strains of FEM–ML's own biaxial run (no FEM) answer its
     stresses and, in virtual work, its platen force (to its Newton tolerance): so against a FEM–DEM
     reference the driven run's error is the material's alone. Its file keeps the reference's
-    kinematics and says it ran no Newton and no DEM; a reference on another mesh is refused."""
+    kinematics and says it ran no Newton and no DEM; a reference on another mesh is refused.
+    FEM–ML solved as the reference is takes FEM–DEM's Newton settings (tiny.yaml's biaxial: 5e-2,
+    the extrapolating predictor, Anderson) and ND for its tangent."""
     import torch
 
     from granular_multiscale.analysis.problem_surrogate import comparison_table
     from granular_multiscale.data import write_run
-    from granular_multiscale.drivers.fem_ml import run_along_reference, run_fem_ml
+    from granular_multiscale.config import dem_newton_config
+    from granular_multiscale.drivers.fem_ml import fem_ml_config, run_along_reference, run_fem_ml
     from granular_multiscale.materials.elastoplastic import Elastoplastic
     from granular_multiscale.paths import load_paths_from_config
     from granular_multiscale.surrogate.dataset import build_dataset
@@ -180,10 +183,23 @@ def test_the_networks_along_a_runs_own_strains_give_back_that_run(tmp_path):
     config["surrogate"].update(newton={}, ensemble_size=2, epochs=150, learning_rate=5e-3, batch_size=256)
     path = load_paths_from_config(config)["path1"]
     run = material_point_run(Elastoplastic.from_config(12, config), triaxial_strain_paths(path, 12, seed=2), path)
-    sigma, _, _ = train(*build_dataset(run, 0.75, seed=0), "sigma", config["surrogate"], seed=0, config=config)
-    sigma.save(tmp_path / "sigma.pt")
+    data = build_dataset(run, 0.75, seed=0)
+    for kind in ("sigma", "tangent"):
+        train(*data, kind, config["surrogate"], seed=0, config=config)[0].save(tmp_path / f"{kind}.pt")
     ml = run_fem_ml(config, "p", tmp_path / "sigma.pt", None, "autodiff", progress=False, problem="biaxial")
     assert int(ml.cutbacks.sum()) == 0  # one commit per step, as the driven run makes
+    assert ml.attrs["newton_settings_of"] == "fem_ml" and ml.attrs["newton_tolerance"] == config["newton"]["tolerance"]
+
+    as_reference = run_fem_ml(config, "p", tmp_path / "sigma.pt", tmp_path / "tangent.pt", "nn", progress=False,
+                              problem="biaxial", solver="reference", allow_partial=True)
+    solved = dem_newton_config(config, "biaxial")["newton"]
+    assert fem_ml_config(config, "reference", "biaxial")["newton"] == solved and solved["tolerance"] == 0.05
+    assert as_reference.attrs["newton_settings_of"] == "reference" and as_reference.attrs["method"] == "fem_ml_nn"
+    assert (as_reference.attrs["newton_tolerance"], as_reference.attrs["newton_predictor"],
+            as_reference.attrs["newton_acceleration"]) == (0.05, solved["predictor"], solved["acceleration"])
+    assert as_reference.attrs["completed"] == 1 and as_reference.residual_relative.values.max() <= 0.05
+    with pytest.raises(ValueError, match="solver settings must be one of"):
+        fem_ml_config(config, "dem", "biaxial")
 
     driven = run_along_reference(config, ml, tmp_path / "sigma.pt", None, "autodiff", "biaxial")
     write_run(driven, tmp_path / "driven.h5", config)

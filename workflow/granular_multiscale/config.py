@@ -340,3 +340,9 @@ def dem_newton_config(config: dict, problem: str = "triaxial") -> dict:
     if problem != "triaxial":
         cfg["newton"].update(cfg[problem].get("dem_newton", {}))
     return cfg
+
+
+def reference_newton_config(config: dict, problem: str = "triaxial") -> dict:
+    """The config the reference run of `problem` is solved with: :func:`dem_newton_config` for
+    FEM–DEM (``reference_material: dem``), the config as it is for the analytic reference."""
+    return dem_newton_config(config, problem) if config["reference_material"] == "dem" else copy.deepcopy(config)

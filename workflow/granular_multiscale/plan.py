@@ -36,7 +36,9 @@ TRAINING_KEYS = [
 WHERE_DEM_RUNS = ("executor", "n_workers", "dask_scheduler")
 FIELD_QUANTITIES = ["axial_displacement", "shear_strain", "sigma23"]
 CONTROL_LABEL = {"linear_elastic": "elastic model", "elastoplastic": "elastoplastic model fitted to Path1"}
-#: the row of FEM–ML's networks driven along a problem reference's strains (rule problem_fem_ml_driven)
+#: the rows of FEM–ML solved as a problem's reference is (rule problem_fem_ml_as_reference) and of its
+#: networks driven along the reference's strains (rule problem_fem_ml_driven)
+AS_REFERENCE_LABEL = "FEM–ML solved as the reference (its Newton settings, ND tangent)"
 DRIVEN_LABEL = "FEM–ML's networks along the reference's strains (no FEM)"
 PROBLEM_LABEL = {"biaxial": "Biaxial test (plane strain)", "footing": "Strip footing (plane strain)"}
 ELEMENT_TESTS = {"triaxial": "triaxial compression", "biaxial": "plane strain compression"}
@@ -473,13 +475,14 @@ class Plan:
         return runs
 
     def problem_comparison(self, problem: str, case: str) -> dict[str, str]:
-        """Ordered {label: run file} of a problem's surrogate products: the reference first, FEM–ML, its
-        networks driven along the reference's strains (no FEM: the material's error alone) and the
-        analytic model alone (no networks, no DEM), then (adaptive.problems) the adaptive run and its
-        controls."""
+        """Ordered {label: run file} of a problem's surrogate products: the reference first, FEM–ML, FEM–ML
+        solved as the reference is (its Newton settings, ND for the tangent), its networks driven along
+        the reference's strains (no FEM: the material's error alone) and the analytic model alone (no
+        networks, no DEM), then (adaptive.problems) the adaptive run and its controls."""
         L = self.layout
         runs = {self.reference_label: self.problem_run(problem, case), self.surrogate_label:
                 L.problem_run(problem, "fem_ml", case),
+                AS_REFERENCE_LABEL: L.problem_run(problem, "fem_ml_as_reference", case),
                 DRIVEN_LABEL: L.problem_run(problem, "fem_ml_driven", case)}
         if self.reference == "fem_dem":
             runs["FEM, elastoplastic model fitted to Path1 (no networks)"] = L.problem_run(problem, "fem_elastoplastic",

@@ -2,7 +2,7 @@
 import sys
 
 from granular_multiscale import integrity, output_lock
-from granular_multiscale.config import ConfigError, validate_config
+from granular_multiscale.config import ConfigError, reference_newton_config, validate_config
 from granular_multiscale.drivers.problems import check_problems
 from granular_multiscale.plan import Plan
 

@@ -5,6 +5,9 @@
 #                             biaxial test's weak zone, with surrogate.weak_zone_sources); a run that
 #                             stops keeps its converged steps (completed = 0) and the table says
 #                             where it stopped
+#   problem_fem_ml_as_reference  {OUT}/{problem}/fem_ml_as_reference/{case}.h5: FEM–ML solved as the reference
+#                             is: its Newton settings (tolerance, predictor, acceleration) and ND, the
+#                             network of the reference's own tangent (FEM–DEM: contact stiffness)
 #   problem_fem_ml_driven     {OUT}/{problem}/fem_ml_driven/{case}.h5: the same networks driven along the
 #                             reference run's strain histories, no FEM: the material's share of FEM–ML's
 #                             error (its force from the networks' stresses in virtual work)
@@ -45,6 +48,23 @@ use rule fem_ml as problem_fem_ml with:
     params:
         tangent=config["surrogate"]["tangent"],
         depends=lambda wc: PLAN.problem_surrogate_definition(wc.problem),
+        allow_partial=True,
+        problem=lambda wc: wc.problem,
+        path_name=lambda wc: wc.case,
+
+
+use rule problem_fem_ml as problem_fem_ml_as_reference with:
+    output:
+        L.problem_run("{problem}", "fem_ml_as_reference", "{case}"),
+    log:
+        L.log("{problem}/fem_ml_as_reference/{case}"),
+    benchmark:
+        L.benchmark("{problem}/fem_ml_as_reference/{case}")
+    params:
+        tangent="nn",
+        solver="reference",
+        depends=lambda wc: {**PLAN.problem_surrogate_definition(wc.problem),
+                            "reference_newton": reference_newton_config(config, wc.problem)["newton"]},
         allow_partial=True,
         problem=lambda wc: wc.problem,
         path_name=lambda wc: wc.case,

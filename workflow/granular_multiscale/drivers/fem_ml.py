@@ -34,6 +34,7 @@ import numpy as np
 import torch
 import xarray as xr
 
+from ..config import reference_newton_config
 from ..data import tangent_variables
 from ..fem.newton import ConvergenceError
 from ..materials.base import MaterialPointSet
@@ -43,8 +44,19 @@ from ..tensors import TCOMP36
 from .problems import problem_and_path
 
 
-def fem_ml_config(config: dict) -> dict:
-    """The config a FEM–ML run uses: ``newton`` with the overrides of ``surrogate.newton``."""
+#: whose Newton settings a FEM–ML run is solved with (:func:`fem_ml_config`)
+SOLVERS = ("fem_ml", "reference")
+
+
+def fem_ml_config(config: dict, solver: str = "fem_ml", problem: str = "triaxial") -> dict:
+    """The config a FEM–ML run uses: ``newton`` with the overrides of ``surrogate.newton``; with
+    solver ``reference``, the Newton settings the reference run of `problem` is solved with
+    (:func:`~granular_multiscale.config.reference_newton_config`: FEM–DEM's tolerance, predictor and
+    acceleration), so that FEM–ML and its reference differ in the material only."""
+    if solver not in SOLVERS:
+        raise ValueError(f"FEM–ML solver settings must be one of {SOLVERS}, got {solver!r}")
+    if solver == "reference":
+        return reference_newton_config(config, problem)
     cfg = copy.deepcopy(config)
     cfg["newton"].update(config["surrogate"].get("newton", {}))
     return cfg
@@ -62,6 +74,7 @@ def run_fem_ml(
     allow_partial: bool = False,
     problem: str = "triaxial",
     weak_zone_models: dict | None = None,
+    solver: str = "fem_ml",
 ) -> xr.Dataset:
     """FEM–ML run of load path `path_name` of `problem` (validated config); returns the run Dataset.
 
@@ -69,9 +82,11 @@ def run_fem_ml(
     only compare the two tangents' Newton iterations) the converged steps are returned instead,
     marked ``completed = 0`` with ``stopped_at_step`` and ``stop_reason``. A weak zone of the problem
     gets the networks of `weak_zone_models` ({"sigma": file, "tangent": file}, trained on RVEs of
-    the weak packing); without them it gets the specimen's networks (a warning says so)."""
+    the weak packing); without them it gets the specimen's networks (a warning says so). `solver`
+    (:data:`SOLVERS`): FEM–ML's own Newton settings, or those of the problem's reference run
+    (attribute ``newton_settings_of``)."""
     logger = logger or logging.getLogger("granular_multiscale.fem_ml")
-    config = fem_ml_config(config)
+    config = fem_ml_config(config, solver, problem)
     bvp, load_path = problem_and_path(config, problem, path_name)
     material = problem_surrogate_material(config, bvp, sigma_model, tangent_model, tangent, weak_zone_models, logger)
     logger.info(
@@ -86,6 +101,7 @@ def run_fem_ml(
                                  f"FEM–ML {problem} {path_name} with the {tangent} tangent")
     ds = ds.assign(spread_variables(material, ds))
     ds.attrs.update(surrogate_attributes(material, sigma_model, tangent_model))
+    ds.attrs["newton_settings_of"] = solver
     if isinstance(material, ZonedSurrogate):
         ds.attrs["surrogate_weak_zone_sigma_model"] = str(weak_zone_models["sigma"])
     n_out = int(ds["out_of_range_points"].max()) if "out_of_range_points" in ds else 0
