@@ -29,7 +29,8 @@ replaced by the analytic model.
 writes), against the same references; their runs are kept apart from the pipeline networks'.
 
 A variant is `key=value` pairs of the config section `adaptive` (threshold: one of its thresholds;
-.inf / inf for none); what it leaves out comes from the config. Runs are written to
+.inf / inf for none), and `tangent=nn|autodiff` for the networks' tangent (surrogate.tangent); what
+it leaves out comes from the config. Runs are written to
 adaptive_variants_runs/<variant>/<path>.h5 (problems: <variant>/<problem>/<case>.h5, controls
 <variant>,control=<model>/...) beside the record and reused when they exist (delete to rerun).
 """
@@ -79,8 +80,12 @@ def variant_config(config: dict, text: str) -> tuple[dict, float, str]:
     its name (the folder of its runs)."""
     variant = parse_variant(text)
     threshold = float(variant.pop("threshold"))
+    tangent = variant.pop("tangent", None)  # not a key of the section adaptive: surrogate.tangent
     cfg = copy.deepcopy(config)
     cfg["adaptive"].update(variant)
+    if tangent is not None:
+        cfg["surrogate"]["tangent"] = tangent
+        variant["tangent"] = tangent
     return validate_config(cfg), threshold, variant_name({**variant, "threshold": threshold})
 
 
@@ -126,7 +131,8 @@ def problem_rows(plan: Plan, problem: str, variants: list[str], controls: bool, 
                 t0 = time.perf_counter()
                 # a control has no network inputs to carry a residual in: its correction is none
                 run_cfg = cfg if control is None else {**cfg, "adaptive": {**cfg["adaptive"], "correction": "none"}}
-                run_adaptive(run_cfg, case, threshold, plan.packings, sigma, tangent_model, tangent, output=out,
+                run_adaptive(run_cfg, case, threshold, plan.packings, sigma, tangent_model, cfg["surrogate"]["tangent"],
+                             output=out,
                              checkpoint=out.with_suffix(".ckpt"), n_workers=workers, allow_partial=True,
                              trajectories=trajectories, problem=problem, weak_packing=weak_packing,
                              control=control, schedule_from=schedule)
@@ -177,7 +183,8 @@ def main(argv=None) -> list[dict]:
                 wall = float(run.attrs["time_run_s"])
             else:
                 t0 = time.perf_counter()
-                run = run_adaptive(cfg, path, threshold, packings, sigma, tangent_model, tangent, output=file,
+                run = run_adaptive(cfg, path, threshold, packings, sigma, tangent_model, cfg["surrogate"]["tangent"],
+                                   output=file,
                                    checkpoint=file.with_suffix(".ckpt"), n_workers=args.workers)
                 wall = time.perf_counter() - t0
             rows.append({"path": path, "variant": name, **measure(reference, run, wall)})
