@@ -116,6 +116,10 @@ def test_the_surrogate_on_the_problems_beside_its_controls():
         ("control: elastoplastic model fitted to Path1 + the same DEM points",
          "out/biaxial/control_elastoplastic/biaxial.h5")]
     assert plan.problem_threshold("biaxial") == np.inf and plan.problem_threshold("footing") == 0.6
+    # the biaxial test's adaptive run gives its networks ND's tangent (solved as FEM–DEM is); the others surrogate.tangent
+    assert (plan.adaptive_tangent("biaxial"), plan.adaptive_tangent("footing"), plan.adaptive_tangent()) == \
+        ("nn", "autodiff", "autodiff")
+    assert plan.problem_surrogate_definition("biaxial", adaptive=True)["adaptive"]["tangent"] == "nn"
     assert list(plan.problem_adaptive_runs("footing", "footing"))[0] == "adaptive FEM–DEM–ML, distance ≥ 0.6"
     assert plan.layout.problem_dem_points("footing", plan.problem_adaptive_method, "footing") == \
         "out/footing/adaptive/dem_points/footing.h5"

@@ -301,6 +301,12 @@ class Plan:
                 "surrogate_newton": s["newton"], "anchor_initial_state": s["anchor_initial_state"],
                 "out_of_range_tolerance": s["out_of_range_tolerance"], "other_pressure": s["other_pressure"]}
 
+    def adaptive_tangent(self, problem: str | None = None) -> str:
+        """The networks' tangent in an adaptive run (of `problem`: with the keys its section's
+        ``adaptive`` sets): adaptive.tangent, or surrogate.tangent where that is null."""
+        config = self.config if problem is None else problem_adaptive_config(self.config, problem)[0]
+        return config["adaptive"].get("tangent") or self.config["surrogate"]["tangent"]
+
     def adaptive_definition(self, path: str) -> dict:
         """What an adaptive run depends on besides its inputs."""
         adaptive = self.config["adaptive"]

@@ -39,7 +39,7 @@ for _round, _thresholds in PLAN.adaptive_round_thresholds.items():
         params:
             threshold=lambda wc, thresholds=_thresholds: thresholds[wc.label],
             checkpoint=L.checkpoint(f"{_round}adaptive/{{label}}/{{path}}"),
-            tangent=config["surrogate"]["tangent"],
+            tangent=PLAN.adaptive_tangent(),
             allow_partial=config["surrogate"]["keep_partial_runs"],
             depends=lambda wc: PLAN.adaptive_definition(wc.path),
         wildcard_constraints:
@@ -63,7 +63,7 @@ use rule adaptive as adaptive_control with:
     params:
         threshold=lambda wc: PLAN.adaptive_thresholds[wc.label],
         checkpoint=L.checkpoint("adaptive/{label}_{control}/{path}"),
-        tangent=config["surrogate"]["tangent"],
+        tangent=PLAN.adaptive_tangent(),
         allow_partial=True,
         depends=lambda wc: {**PLAN.adaptive_definition(wc.path), "model": config[wc.control]},
         control=lambda wc: wc.control,

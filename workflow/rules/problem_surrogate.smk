@@ -104,7 +104,7 @@ use rule adaptive as problem_adaptive with:
     params:
         threshold=lambda wc: PLAN.problem_threshold(wc.problem),
         checkpoint=L.checkpoint(f"{{problem}}/{PLAN.problem_adaptive_method}/{{case}}"),
-        tangent=config["surrogate"]["tangent"],
+        tangent=lambda wc: PLAN.adaptive_tangent(wc.problem),
         allow_partial=True,
         depends=lambda wc: PLAN.problem_surrogate_definition(wc.problem, adaptive=True),
         problem=lambda wc: wc.problem,
@@ -126,7 +126,7 @@ use rule adaptive as problem_adaptive_control with:
     params:
         threshold=lambda wc: PLAN.problem_threshold(wc.problem),
         checkpoint=L.checkpoint(f"{{problem}}/{PLAN.control_method('{control}')}/{{case}}"),
-        tangent=config["surrogate"]["tangent"],
+        tangent=lambda wc: PLAN.adaptive_tangent(wc.problem),
         allow_partial=True,
         depends=lambda wc: {**PLAN.problem_surrogate_definition(wc.problem, adaptive=True), "model": config[wc.control]},
         problem=lambda wc: wc.problem,
