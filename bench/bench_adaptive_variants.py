@@ -29,8 +29,7 @@ replaced by the analytic model.
 writes), against the same references; their runs are kept apart from the pipeline networks'.
 
 A variant is `key=value` pairs of the config section `adaptive` (threshold: one of its thresholds;
-.inf / inf for none), and `tangent=nn|autodiff` for the networks' tangent (surrogate.tangent); what
-it leaves out comes from the config. Runs are written to
+.inf / inf for none; tangent: the networks' tangent); what it leaves out comes from the config. Runs are written to
 adaptive_variants_runs/<variant>/<path>.h5 (problems: <variant>/<problem>/<case>.h5, controls
 <variant>,control=<model>/...) beside the record and reused when they exist (delete to rerun).
 """
@@ -47,7 +46,7 @@ import numpy as np
 import pandas as pd
 
 from granular_multiscale.analysis.problem_surrogate import comparison_table
-from granular_multiscale.config import validate_config
+from granular_multiscale.config import adaptive_tangent, validate_config
 from granular_multiscale.data import read_run, write_run
 from granular_multiscale.drivers.adaptive import run_adaptive
 from granular_multiscale.drivers.fem_ml import run_fem_ml
@@ -80,12 +79,8 @@ def variant_config(config: dict, text: str) -> tuple[dict, float, str]:
     its name (the folder of its runs)."""
     variant = parse_variant(text)
     threshold = float(variant.pop("threshold"))
-    tangent = variant.pop("tangent", None)  # not a key of the section adaptive: surrogate.tangent
     cfg = copy.deepcopy(config)
     cfg["adaptive"].update(variant)
-    if tangent is not None:
-        cfg["surrogate"]["tangent"] = tangent
-        variant["tangent"] = tangent
     return validate_config(cfg), threshold, variant_name({**variant, "threshold": threshold})
 
 
@@ -131,7 +126,7 @@ def problem_rows(plan: Plan, problem: str, variants: list[str], controls: bool, 
                 t0 = time.perf_counter()
                 # a control has no network inputs to carry a residual in: its correction is none
                 run_cfg = cfg if control is None else {**cfg, "adaptive": {**cfg["adaptive"], "correction": "none"}}
-                run_adaptive(run_cfg, case, threshold, plan.packings, sigma, tangent_model, cfg["surrogate"]["tangent"],
+                run_adaptive(run_cfg, case, threshold, plan.packings, sigma, tangent_model, adaptive_tangent(cfg),
                              output=out,
                              checkpoint=out.with_suffix(".ckpt"), n_workers=workers, allow_partial=True,
                              trajectories=trajectories, problem=problem, weak_packing=weak_packing,
@@ -183,7 +178,7 @@ def main(argv=None) -> list[dict]:
                 wall = float(run.attrs["time_run_s"])
             else:
                 t0 = time.perf_counter()
-                run = run_adaptive(cfg, path, threshold, packings, sigma, tangent_model, cfg["surrogate"]["tangent"],
+                run = run_adaptive(cfg, path, threshold, packings, sigma, tangent_model, adaptive_tangent(cfg),
                                    output=file,
                                    checkpoint=file.with_suffix(".ckpt"), n_workers=args.workers)
                 wall = time.perf_counter() - t0

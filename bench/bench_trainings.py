@@ -38,7 +38,7 @@ import pandas as pd
 from granular_multiscale.analysis import calibration
 from granular_multiscale.analysis.problem_surrogate import (comparison_table, first_step_after_peak,
                                                             rank_correlation_after_peak, run_features, stress_errors)
-from granular_multiscale.config import problem_adaptive_config
+from granular_multiscale.config import adaptive_tangent, problem_adaptive_config
 from granular_multiscale.data import read_run, write_run
 from granular_multiscale.drivers.adaptive import run_adaptive
 from granular_multiscale.drivers.fem_ml import run_along_reference, run_fem_ml
@@ -132,7 +132,8 @@ def runs_of(plan: Plan, models: dict | None, folder: Path, workers: int, logger)
         biaxial_config, threshold = problem_adaptive_config(config, "biaxial")
         made("adaptive biaxial", "biaxial", folder / "biaxial" / plan.problem_adaptive_method / f"{case}.h5",
              lambda file: run_adaptive(
-                 biaxial_config, case, threshold, plan.packings, specimen["sigma"], specimen["tangent"], tangent,
+                 biaxial_config, case, threshold, plan.packings, specimen["sigma"], specimen["tangent"],
+                 adaptive_tangent(biaxial_config),
                  output=file, checkpoint=file.with_suffix(".ckpt"), n_workers=workers, logger=logger,
                  allow_partial=True, problem="biaxial", weak_packing=plan.weak_packing_input("biaxial")[0]))
     return runs

@@ -330,6 +330,12 @@ def problem_adaptive_config(config: dict, problem: str) -> tuple[dict, float]:
     return cfg, threshold
 
 
+def adaptive_tangent(config: dict) -> str:
+    """The networks' tangent in an adaptive run of `config`: adaptive.tangent, or surrogate.tangent
+    where that is null."""
+    return config["adaptive"].get("tangent") or config["surrogate"]["tangent"]
+
+
 def dem_newton_config(config: dict, problem: str = "triaxial") -> dict:
     """The config a FEM–DEM run of `problem` uses: ``newton`` with the overrides of ``dem.newton``,
     and then those of the problem's ``dem_newton`` (the plane-strain problems' sections)."""

@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 
 from .adaptive import threshold_label
-from .config import dem_newton_config, problem_adaptive_config
+from .config import adaptive_tangent, dem_newton_config, problem_adaptive_config
 from .paths import load_paths_from_config
 
 # network name -> (what it predicts, whether it reads the history variables)
@@ -304,8 +304,7 @@ class Plan:
     def adaptive_tangent(self, problem: str | None = None) -> str:
         """The networks' tangent in an adaptive run (of `problem`: with the keys its section's
         ``adaptive`` sets): adaptive.tangent, or surrogate.tangent where that is null."""
-        config = self.config if problem is None else problem_adaptive_config(self.config, problem)[0]
-        return config["adaptive"].get("tangent") or self.config["surrogate"]["tangent"]
+        return adaptive_tangent(self.config if problem is None else problem_adaptive_config(self.config, problem)[0])
 
     def adaptive_definition(self, path: str) -> dict:
         """What an adaptive run depends on besides its inputs."""
