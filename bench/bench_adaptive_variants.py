@@ -29,9 +29,10 @@ replaced by the analytic model.
 writes), against the same references; their runs are kept apart from the pipeline networks'.
 
 A variant is `key=value` pairs of the config section `adaptive` (threshold: one of its thresholds;
-.inf / inf for none; tangent: the networks' tangent); what it leaves out comes from the config. Runs are written to
-adaptive_variants_runs/<variant>/<path>.h5 (problems: <variant>/<problem>/<case>.h5, controls
-<variant>,control=<model>/...) beside the record and reused when they exist (delete to rerun).
+.inf / inf for none; tangent: the networks' tangent); what it leaves out comes from the config.
+Runs are written to adaptive_variants_runs/<variant>/<path>.h5 (problems:
+<variant>/<problem>/<case>.h5, controls <variant>,control=<model>/...) beside the record and reused
+when they exist (delete to rerun).
 """
 
 from __future__ import annotations

@@ -153,12 +153,12 @@ def problem_headline_rows(record: dict) -> list[str]:
         rows = {r["run"]: r for r in rows_of(record, f"{problem}/surrogate_{problem}.csv")}
         ml = next(r for name, r in rows.items() if name.startswith("FEM–ML"))
         text = (f"FEM–ML {ml['force: largest error (% of peak)']:.1f} % (steps {ml['steps reached']}){_band(ml)}")
-        for start, what in (("FEM–ML solved as the reference", "solved as the reference is (its Newton settings, ND "
-                                                                 "tangent)"),
-                            ("FEM–ML's networks along", "its networks along the reference's strains (no FEM)")):
+        for start, what, has_band in (
+                ("FEM–ML solved as the reference", "solved as the reference is (its Newton settings, ND tangent)", True),
+                ("FEM–ML's networks along", "its networks along the reference's strains (no FEM)", False)):
             row = next((r for name, r in rows.items() if name.startswith(start)), None)
             if row is not None:  # rows of the runs since 2026-12-07
-                text += f"; {what} {row['force: largest error (% of peak)']:.1f} %{_band(row) if 'solved' in what else ''}"
+                text += f"; {what} {row['force: largest error (% of peak)']:.1f} %{_band(row) if has_band else ''}"
         adaptive = [(name, r) for name, r in rows.items() if name.startswith("adaptive")]
         control = [r for name, r in rows.items() if name.startswith("control")]
         if adaptive and control:
