@@ -126,7 +126,7 @@ def test_the_surrogate_on_the_problems_beside_its_controls():
     # the footing's adaptive run depends on its own settings over the adaptive section; the biaxial's does not
     footing, biaxial = (plan.problem_surrogate_definition(p, adaptive=True) for p in ("footing", "biaxial"))
     assert footing["adaptive"]["indicator"] == "distance" and biaxial["adaptive"]["indicator"] == "spread"
-    assert "threshold" not in footing["adaptive"] and footing["section"]["adaptive"]["threshold"] == 0.6
+    assert "threshold" not in footing["adaptive"] and footing["threshold"] == 0.6 and "adaptive" not in footing["section"]
     targets = plan.all_targets()
     assert {"out/tables/biaxial/surrogate_biaxial.csv", "out/tables/footing/surrogate_footing.csv",
             "out/tables/visited_states.csv"} <= set(targets)
@@ -173,6 +173,12 @@ def test_rerun_triggers_hold_what_changes_a_result_and_nothing_else():
     assert plan.adaptive_definition("path2")["dem"] == plan.run_definition
     variant, settings = next(iter(plan.config["tolerance_study"]["variants"].items()))
     assert plan.study_dem(variant)["newton"] == {**plan.config["dem"]["newton"], **settings}
+    # a problem's adaptive settings are its adaptive run's alone: its reference and FEM–ML runs stay
+    other_adaptive = plan_of("config.yaml", biaxial={"adaptive": {"threshold": 0.02}})
+    assert other_adaptive.problem_definition("biaxial") == plan.problem_definition("biaxial")
+    assert other_adaptive.problem_surrogate_definition("biaxial") == plan.problem_surrogate_definition("biaxial")
+    assert other_adaptive.problem_surrogate_definition("biaxial", adaptive=True) != \
+        plan.problem_surrogate_definition("biaxial", adaptive=True)
 
 
 @pytest.mark.parametrize("configs", [("config.yaml",), ("config.yaml", "tiny.yaml"), ("config.yaml", "paper.yaml")])

@@ -328,11 +328,16 @@ class Plan:
             return self.layout.run("fem_dem", path)
         return self.layout.tolerance_run(variant, path)
 
+    def problem_section(self, problem: str) -> dict:
+        """The section of `problem` as its runs depend on it: without its adaptive run's settings, which
+        only that run (:meth:`problem_surrogate_definition` with `adaptive`) depends on."""
+        return {key: value for key, value in self.config[problem].items() if key != "adaptive"}
+
     def problem_definition(self, problem: str) -> dict:
         """What a run of `problem` depends on: its section, the confinement, Newton and the material's settings."""
         c = self.config
         material = self.run_definition if self.reference == "fem_dem" else c["elastoplastic"]
-        return {"section": c[problem], "pressure": c["specimen"]["confining_pressure"], "newton": c["newton"],
+        return {"section": self.problem_section(problem), "pressure": c["specimen"]["confining_pressure"], "newton": c["newton"],
                 "material": material}
 
     def analytic_problem_definition(self, problem: str) -> dict:
@@ -346,7 +351,7 @@ class Plan:
         if test == "triaxial":
             return {"specimen": {**c["specimen"], "platen": "smooth", "uniform_field": True, "symmetry": "none"},
                     "load_paths": {**c["load_paths"], **path}}
-        return {"biaxial": {**c["biaxial"], "uniform_field": True, "weak_zone": None, "load_paths": path}}
+        return {"biaxial": {**self.problem_section("biaxial"), "uniform_field": True, "weak_zone": None, "load_paths": path}}
 
     # ---- run sets and labels of the products ------------------------------------------------
     def _thresholds_descending(self) -> list[tuple[str, float]]:
@@ -459,14 +464,15 @@ class Plan:
     def problem_surrogate_definition(self, problem: str, adaptive: bool = False) -> dict:
         """What a FEM–ML (or with `adaptive`, an adaptive) run of `problem` depends on besides its inputs."""
         c, s = self.config, self.config["surrogate"]
-        definition = {"section": c[problem], "pressure": c["specimen"]["confining_pressure"], "newton": c["newton"],
-                      "surrogate_newton": s["newton"], "anchor_initial_state": s["anchor_initial_state"],
+        definition = {"section": self.problem_section(problem), "pressure": c["specimen"]["confining_pressure"],
+                      "newton": c["newton"], "surrogate_newton": s["newton"], "anchor_initial_state": s["anchor_initial_state"],
                       "out_of_range_tolerance": s["out_of_range_tolerance"], "other_pressure": s["other_pressure"]}
         if adaptive:
-            merged = problem_adaptive_config(c, problem)[0]["adaptive"]
-            section = {k: v for k, v in merged.items() if k not in ("thresholds", "paths", "report",
-                                                                    "active_learning", "controls", "problems")}
-            definition.update({"dem": self.run_definition, "adaptive": section, "seed": c["seed"]})
+            merged, threshold = problem_adaptive_config(c, problem)
+            section = {k: v for k, v in merged["adaptive"].items() if k not in ("thresholds", "paths", "report",
+                                                                                "active_learning", "controls", "problems")}
+            definition.update({"dem": self.run_definition, "adaptive": section, "threshold": threshold,
+                               "seed": c["seed"]})
         return definition
 
     def problem_adaptive_runs(self, problem: str, case: str) -> dict[str, str]:

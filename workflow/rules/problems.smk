@@ -234,7 +234,7 @@ use rule problem_fem_dem as biaxial_mesh_fem_dem with:
     params:
         checkpoint=L.checkpoint("biaxial_mesh/fem_dem/{mesh}"),
         definition=lambda wc: PLAN.problem_definition("biaxial"),
-        overrides=lambda wc: {"biaxial": {**config["biaxial"], "elements": [int(v) for v in wc.mesh.split("x")]}},
+        overrides=lambda wc: {"biaxial": {**PLAN.problem_section("biaxial"), "elements": [int(v) for v in wc.mesh.split("x")]}},
         problem="biaxial",
         path_name=lambda wc: list(config["biaxial"]["load_paths"])[0],
     wildcard_constraints:
@@ -250,7 +250,7 @@ use rule problem_fem_elastoplastic as biaxial_mesh_fem_elastoplastic with:
         L.benchmark("biaxial_mesh/fem_elastoplastic/{mesh}")
     params:
         model=lambda wc: PLAN.analytic_problem_definition("biaxial"),
-        overrides=lambda wc: {"biaxial": {**config["biaxial"], "elements": [int(v) for v in wc.mesh.split("x")]}},
+        overrides=lambda wc: {"biaxial": {**PLAN.problem_section("biaxial"), "elements": [int(v) for v in wc.mesh.split("x")]}},
         problem="biaxial",
         path_name=lambda wc: list(config["biaxial"]["load_paths"])[0],
     wildcard_constraints:
