@@ -34,6 +34,8 @@ STYLES = (
     dict(color="tab:green", linestyle="-.", linewidth=1.2, marker="^", markersize=3),
     dict(color="tab:purple", linestyle="--", linewidth=1.2, marker="v", markersize=3),
     dict(color="tab:brown", linestyle=":", linewidth=1.2, marker="d", markersize=3),
+    dict(color="tab:orange", linestyle="-", linewidth=1.2, marker="x", markersize=3),
+    dict(color="tab:gray", linestyle="--", linewidth=1.2, marker="+", markersize=4),
 )
 
 

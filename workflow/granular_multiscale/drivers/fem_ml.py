@@ -177,8 +177,8 @@ def run_along_reference(config: dict, reference: xr.Dataset, sigma_model, tangen
             tangents.append(D)
             load_force[step] = bvp.load_force_in_virtual_work(stress[step])
             wall[step] = time.perf_counter() - t0
-    forces = {"load_force": load_force, **{name: np.array([bvp.force_observables(f)[name] for f in load_force])
-                                           for name in bvp.force_observables(0.0)}}
+    observed = [bvp.force_observables(force) for force in load_force]  # top_force, footing_pressure
+    forces = {"load_force": load_force, **{name: np.array([o[name] for o in observed]) for name in observed[0]}}
     tangent_vars, tangent_attrs = tangent_variables(tangents, "along the reference's strains, no FEM")
     kept = reference[[name for name in DRIVEN_KEEPS if name in reference]]
     ds = kept.assign({
