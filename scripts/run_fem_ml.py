@@ -24,7 +24,8 @@ if "snakemake" in globals():
     sm = snakemake  # noqa: F821
     # the weak zone's networks: inputs of problem_fem_ml on a problem with a weak zone
     weak = {"sigma": sm.input.weak_sigma, "tangent": sm.input.weak_tangent} if "weak_sigma" in sm.input.keys() else None
-    main(dict(sm.config), sm.params.get("path_name") or sm.wildcards.path, sm.input.sigma, sm.input.tangent,
+    # ND is not an input of the no-history ablation solved with the autodiff tangent (Plan.networks)
+    main(dict(sm.config), sm.params.get("path_name") or sm.wildcards.path, sm.input.sigma, sm.input.get("tangent"),
          sm.params.tangent, sm.output[0], sm.log[0], allow_partial=bool(sm.params.get("allow_partial", False)),
          problem=sm.params.get("problem") or "triaxial",
          weak_zone_models=weak, solver=sm.params.get("solver") or "fem_ml")

@@ -55,7 +55,15 @@ def test_the_default_scale_trains_on_path1_and_rve_paths_and_validates_on_path2(
     sources, networks = plan.training_rounds()[""]
     assert sources == ["out/fem_dem/path1.h5", "out/rve_paths/designed.h5", "out/rve_paths/long.h5",
                        "out/rve_paths/band.h5", "out/rve_paths/pressure.h5"]
-    assert networks == NETWORKS
+    # the default tangent is NNσ's autodiff Jacobian: the no-history ablation needs no ND of its own
+    assert list(networks) == ["sigma", "tangent", "sigma_nohist"] and networks == {n: NETWORKS[n] for n in networks}
+    assert plan.ablation_models() == {"sigma": "out/models/nn_sigma_nohist.pt"}
+    assert list(plan.training_curves()) == ["NNσ|with history", "ND|with history", "NNσ|no history"]
+    # the paper's tangent, ND: the ablation is solved with its own ND, which is then trained too
+    nn = plan_of("config.yaml", surrogate={"tangent": "nn"})
+    assert nn.training_rounds()[""][1] == NETWORKS and "out/models/nn_tangent_nohist.pt" in nn.all_targets()
+    assert nn.ablation_models() == {"sigma": "out/models/nn_sigma_nohist.pt", "tangent": "out/models/nn_tangent_nohist.pt"}
+    assert "out/models/nn_tangent_nohist.pt" not in plan.all_targets()
     active_sources, active_networks = plan.training_rounds()["active/"]
     assert active_sources[:-1] == sources and active_sources[-1:] == ["out/adaptive/t0.01/dem_points/path2.h5"]
     assert list(active_networks) == ["sigma", "tangent"]
@@ -188,7 +196,9 @@ def test_all_asks_for_the_products_of_every_stage_once(configs):
     assert len(targets) == len(set(targets)) and all(t.startswith("out/") for t in targets)
     L = plan.layout
     assert {plan.reference_run(p) for p in plan.path_names} <= set(targets)
-    assert {L.fem_ml(p) for p in plan.ml_paths} | {L.model(n) for n in NETWORKS} <= set(targets)
+    assert {L.fem_ml(p) for p in plan.ml_paths} | {L.model(n) for n in plan.networks} <= set(targets)
+    # the paper's scale solves with ND (surrogate.tangent: nn): all four networks
+    assert (plan.networks == NETWORKS) == ("paper.yaml" in configs)
     assert {L.table("headline.json"), L.figure("speed_vs_error.png"), L.table("validation_by_phase.csv")} <= set(targets)
     assert (L.figure("adaptive_mode_map.png") in targets) == plan.adaptive_in_report
     for problem in plan.problems:

@@ -237,6 +237,21 @@ class Plan:
         self.problem_adaptive = self.adaptive_in_report and bool(self.problems) and adaptive["problems"]
 
     # ---- training -------------------------------------------------------------------------
+    @property
+    def networks(self) -> dict[str, tuple[str, bool]]:
+        """The networks rule fem_ml and its no-history ablation put at the Gauss points ({name: spec of
+        :data:`NETWORKS`}). ND is always trained (the runs of both tangents, the runs solved as the
+        reference); the ablation's ND only when the pipeline's tangent is ND: with the autodiff
+        tangent the ablation differentiates its own NNσ, and that ND would be trained for nothing."""
+        needed = {n: spec for n, spec in NETWORKS.items() if n != "tangent_nohist"}
+        if self.config["surrogate"]["tangent"] == "nn":
+            needed["tangent_nohist"] = NETWORKS["tangent_nohist"]
+        return needed
+
+    def ablation_models(self) -> dict[str, str]:
+        """{sigma[, tangent]: model file} of rule fem_ml_nohist (:attr:`networks`)."""
+        return {kind: self.layout.model(name) for name, (kind, history) in self.networks.items() if not history}
+
     def reference_run(self, path: str) -> str:
         """The reference run (FEM–DEM or the elastoplastic model) of a load path."""
         return self.layout.run(self.reference, path)
@@ -250,7 +265,7 @@ class Plan:
         sources += [L.rve_paths(s) for s in self.training_rve_sets]
         promoted = [L.adaptive_dem_points(self.active_label, p) for p in self.active_paths]
         with_history = {n: NETWORKS[n] for n in ("sigma", "tangent")}
-        rounds = {"": (sources, NETWORKS), "active/": (sources + promoted, with_history)}
+        rounds = {"": (sources, self.networks), "active/": (sources + promoted, with_history)}
         if self.weak_zone_sets:
             rounds[WEAK_ZONE_ROUND] = ([L.rve_paths(s) for s in self.weak_zone_sets], with_history)
         return rounds
@@ -405,9 +420,10 @@ class Plan:
                 **{p: "training path" for p in self.training_run_paths if p not in self.validation_paths}}
 
     def training_curves(self) -> dict[str, str]:
-        L = self.layout
-        return {"NNσ|with history": L.training("sigma.csv"), "ND|with history": L.training("tangent.csv"),
-                "NNσ|no history": L.training("sigma_nohist.csv"), "ND|no history": L.training("tangent_nohist.csv")}
+        """{'network|series': loss file} of every network the pipeline trains (:attr:`networks`)."""
+        labels = {"sigma": "NNσ|with history", "tangent": "ND|with history", "sigma_nohist": "NNσ|no history",
+                  "tangent_nohist": "ND|no history"}
+        return {labels[n]: self.layout.training(f"{n}.csv") for n in self.networks}
 
     def stress_strain_names(self) -> list[str]:
         analysis = self.config["analysis"]
@@ -527,7 +543,7 @@ class Plan:
     def all_targets(self) -> list[str]:
         L = self.layout
         targets = [self.reference_run(p) for p in self.path_names]
-        targets += [L.model(n) for n in NETWORKS] + [L.training(f"{n}.csv") for n in NETWORKS]
+        targets += [L.model(n) for n in self.networks] + [L.training(f"{n}.csv") for n in self.networks]
         targets += [L.fem_ml(p) for p in self.ml_paths] + [L.run("fem_ml_nohist", p) for p in self.ml_paths]
         targets += list(self.metrics_tables().values())
         v = self.validation_path

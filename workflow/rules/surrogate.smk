@@ -5,7 +5,8 @@
 #                          reference runs of load paths, RVE-path sets), held out by trajectory class
 #   train_<network>        {OUT}/models/nn_<network>.pt, {OUT}/training/<network>.csv (loss per epoch),
 #                          <network>_mae.csv (final MAE per component), <network>_loss.png
-#                          networks: sigma, tangent (9 inputs), sigma_nohist, tangent_nohist (6 inputs)
+#                          networks: sigma, tangent (9 inputs), sigma_nohist (6 inputs), and tangent_nohist
+#                          when surrogate.tangent is nn (PLAN.networks)
 #   fem_ml                 {OUT}/fem_ml/{path}.h5          tangent from config surrogate.tangent
 #   fem_ml_nohist          {OUT}/fem_ml_nohist/{path}.h5   the ablation without history variables
 #   fem_ml_tangent         {OUT}/fem_ml_{nn,autodiff}/{path}.h5   Newton iterations of both tangents
@@ -14,8 +15,6 @@
 #                          sources plus the DEM answers of adaptive runs -> {OUT}/active/dataset, {OUT}/active/models
 #   dataset_weak_zone, train_{sigma,tangent}_weak_zone   the networks of the biaxial test's weak zone
 #                          (surrogate.weak_zone_sources: RVE-path sets of the weak packing) -> {OUT}/weak_zone/models
-from granular_multiscale.plan import NETWORKS
-
 SURROGATE_THREADS = config["surrogate"]["torch_threads"]
 
 
@@ -91,8 +90,7 @@ rule fem_ml:
 
 rule fem_ml_nohist:
     input:
-        sigma=L.model("sigma_nohist"),
-        tangent=L.model("tangent_nohist"),
+        **PLAN.ablation_models(),
     output:
         L.run("fem_ml_nohist", "{path}"),
     log:
@@ -141,7 +139,7 @@ rule metrics:
         tangent_runs=[L.run(f"fem_ml_{t}", PLAN.validation_path) for t in ("nn", "autodiff")],
         train=L.dataset("train"),
         heldout=L.dataset("heldout"),
-        training_mae=[L.training(f"{n}_mae.csv") for n in NETWORKS],
+        training_mae=[L.training(f"{n}_mae.csv") for n in PLAN.networks],
     output:
         **PLAN.metrics_tables(),
     log:
@@ -151,7 +149,7 @@ rule metrics:
     params:
         paths=PLAN.ml_paths,
         validation_path=PLAN.validation_path,
-        networks=list(NETWORKS),
+        networks=list(PLAN.networks),
         tangent=config["surrogate"]["tangent"],
     threads: 1
     script:
