@@ -421,9 +421,11 @@ class Plan:
 
     def training_curves(self) -> dict[str, str]:
         """{'network|series': loss file} of every network the pipeline trains (:attr:`networks`)."""
-        labels = {"sigma": "NNσ|with history", "tangent": "ND|with history", "sigma_nohist": "NNσ|no history",
-                  "tangent_nohist": "ND|no history"}
-        return {labels[n]: self.layout.training(f"{n}.csv") for n in self.networks}
+        curves = {}
+        for name, (kind, history) in self.networks.items():
+            panel = "NNσ" if kind == "sigma" else "ND"
+            curves[f"{panel}|{'with history' if history else 'no history'}"] = self.layout.training(f"{name}.csv")
+        return curves
 
     def stress_strain_names(self) -> list[str]:
         analysis = self.config["analysis"]
