@@ -23,8 +23,8 @@ def main(config, path_name, sigma, tangent_model, tangent, output, log, allow_pa
 if "snakemake" in globals():
     sm = snakemake  # noqa: F821
     # the weak zone's networks: inputs of problem_fem_ml on a problem with a weak zone
-    weak = {"sigma": sm.input.weak_sigma, "tangent": sm.input.weak_tangent} if "weak_sigma" in sm.input.keys() else None
-    # ND is not an input of the no-history ablation solved with the autodiff tangent (Plan.networks)
+    weak = {"sigma": sm.input.weak_sigma, "tangent": sm.input.get("weak_tangent")} if "weak_sigma" in sm.input.keys() else None
+    # ND is not an input of a run solved with the autodiff tangent (Plan.fem_ml_models)
     main(dict(sm.config), sm.params.get("path_name") or sm.wildcards.path, sm.input.sigma, sm.input.get("tangent"),
          sm.params.tangent, sm.output[0], sm.log[0], allow_partial=bool(sm.params.get("allow_partial", False)),
          problem=sm.params.get("problem") or "triaxial",

@@ -19,6 +19,6 @@ def main(config, reference, sigma, tangent_model, tangent, problem, output, log,
 
 if "snakemake" in globals():
     sm = snakemake  # noqa: F821
-    weak = {"sigma": sm.input.weak_sigma, "tangent": sm.input.weak_tangent} if "weak_sigma" in sm.input.keys() else None
-    main(dict(sm.config), sm.input.reference, sm.input.sigma, sm.input.tangent, sm.params.tangent, sm.wildcards.problem,
+    weak = {"sigma": sm.input.weak_sigma, "tangent": sm.input.get("weak_tangent")} if "weak_sigma" in sm.input.keys() else None
+    main(dict(sm.config), sm.input.reference, sm.input.sigma, sm.input.get("tangent"), sm.params.tangent, sm.wildcards.problem,
          sm.output[0], sm.log[0], weak_zone_models=weak)

@@ -55,14 +55,22 @@ def test_the_default_scale_trains_on_path1_and_rve_paths_and_validates_on_path2(
     sources, networks = plan.training_rounds()[""]
     assert sources == ["out/fem_dem/path1.h5", "out/rve_paths/designed.h5", "out/rve_paths/long.h5",
                        "out/rve_paths/band.h5", "out/rve_paths/pressure.h5"]
-    # the default tangent is NNσ's autodiff Jacobian: the no-history ablation needs no ND of its own
+    # the default tangent is NNσ's autodiff Jacobian: FEM–ML and its no-history ablation read no ND,
+    # and ND's training is no part of making the surrogate they use
     assert list(networks) == ["sigma", "tangent", "sigma_nohist"]
-    assert plan.ablation_models() == {"sigma": "out/models/nn_sigma_nohist.pt"}
+    assert plan.fem_ml_models() == {"sigma": "out/models/nn_sigma.pt"}
+    assert plan.fem_ml_models(history=False) == {"sigma": "out/models/nn_sigma_nohist.pt"}
+    trainings = [item for item, _, _ in plan.surrogate_cost_items() if item.startswith("training")]
+    assert trainings == ["training NNσ (rule train_sigma)"]
     assert list(plan.training_curves()) == ["NNσ|with history", "ND|with history", "NNσ|no history"]
     # the paper's tangent, ND: the ablation is solved with its own ND, which is then trained too
     nn = plan_of("config.yaml", surrogate={"tangent": "nn"})
     assert nn.training_rounds()[""][1] == NETWORKS and "out/models/nn_tangent_nohist.pt" in nn.all_targets()
-    assert nn.ablation_models() == {"sigma": "out/models/nn_sigma_nohist.pt", "tangent": "out/models/nn_tangent_nohist.pt"}
+    assert nn.fem_ml_models(history=False) == {"sigma": "out/models/nn_sigma_nohist.pt",
+                                               "tangent": "out/models/nn_tangent_nohist.pt"}
+    assert nn.fem_ml_models() == {"sigma": "out/models/nn_sigma.pt", "tangent": "out/models/nn_tangent.pt"}
+    assert [item for item, _, _ in nn.surrogate_cost_items() if item.startswith("training")] == [
+        "training NNσ (rule train_sigma)", "training ND (rule train_tangent)"]
     assert "out/models/nn_tangent_nohist.pt" not in plan.all_targets()
     active_sources, active_networks = plan.training_rounds()["active/"]
     assert active_sources[:-1] == sources and active_sources[-1:] == ["out/adaptive/t0.01/dem_points/path2.h5"]
@@ -78,6 +86,12 @@ def test_the_default_scale_trains_on_path1_and_rve_paths_and_validates_on_path2(
     assert plan.weak_zone_models("biaxial") == {"weak_sigma": "out/weak_zone/models/nn_sigma.pt",
                                                 "weak_tangent": "out/weak_zone/models/nn_tangent.pt"}
     assert plan.weak_zone_models("footing") == {}
+    # a problem's FEM–ML run reads the weak zone's NNσ too, and its ND only when solved with ND
+    assert plan.fem_ml_models(problem="biaxial") == {"sigma": "out/models/nn_sigma.pt",
+                                                     "weak_sigma": "out/weak_zone/models/nn_sigma.pt"}
+    assert plan.fem_ml_models(problem="biaxial", tangent="nn") == {
+        "sigma": "out/models/nn_sigma.pt", "tangent": "out/models/nn_tangent.pt", **plan.weak_zone_models("biaxial")}
+    assert plan.fem_ml_models(problem="footing") == {"sigma": "out/models/nn_sigma.pt"}
     # the spread's scale: each network pair FEM–ML uses, on its own held-out trajectories
     assert plan.spread_scale_inputs() == {
         "specimen_sigma": "out/models/nn_sigma.pt", "specimen_heldout": "out/dataset/heldout.h5",

@@ -26,6 +26,7 @@ NETWORKS = {
     "sigma_nohist": ("sigma", False),
     "tangent_nohist": ("tangent", False),
 }
+NETWORK_LABEL = {"sigma": "NNσ", "tangent": "ND"}
 # the keys of `surrogate` that change a trained network (only these re-run the training rules)
 TRAINING_KEYS = [
     "hidden_layers", "hidden_units", "activation", "batch_size", "learning_rate", "epochs", "ensemble_size",
@@ -248,9 +249,19 @@ class Plan:
             needed["tangent_nohist"] = NETWORKS["tangent_nohist"]
         return needed
 
-    def ablation_models(self) -> dict[str, str]:
-        """{sigma[, tangent]: model file} of rule fem_ml_nohist (:attr:`networks`)."""
-        return {kind: self.layout.model(name) for name, (kind, history) in self.networks.items() if not history}
+    def fem_ml_models(self, history: bool = True, problem: str | None = None, tangent: str | None = None) -> dict[str, str]:
+        """{sigma[, tangent]: model file} that a FEM–ML run solved with `tangent` (default: the
+        pipeline's, ``surrogate.tangent``) reads: rule fem_ml's, or with `history` False its no-history
+        ablation's; for a `problem`, also the weak zone's networks (:meth:`weak_zone_models`). ND only
+        with the ``nn`` tangent: the autodiff tangent is NNσ's own Jacobian, so such a run waits for
+        no ND."""
+        kinds = ("sigma", "tangent") if (tangent or self.config["surrogate"]["tangent"]) == "nn" else ("sigma",)
+        models = {kind: self.layout.model(name) for name, (kind, with_history) in NETWORKS.items()
+                  if with_history == history and kind in kinds}
+        if problem is not None:
+            models.update({key: file for key, file in self.weak_zone_models(problem).items()
+                           if key.removeprefix("weak_") in kinds})
+        return models
 
     def reference_run(self, path: str) -> str:
         """The reference run (FEM–DEM or the elastoplastic model) of a load path."""
@@ -423,8 +434,7 @@ class Plan:
         """{'network|series': loss file} of every network the pipeline trains (:attr:`networks`)."""
         curves = {}
         for name, (kind, history) in self.networks.items():
-            panel = "NNσ" if kind == "sigma" else "ND"
-            curves[f"{panel}|{'with history' if history else 'no history'}"] = self.layout.training(f"{name}.csv")
+            curves[f"{NETWORK_LABEL[kind]}|{'with history' if history else 'no history'}"] = self.layout.training(f"{name}.csv")
         return curves
 
     def stress_strain_names(self) -> list[str]:
@@ -448,8 +458,8 @@ class Plan:
     def surrogate_cost_items(self) -> list[tuple[str, str, str]]:
         """(what, how to read it, file) of each step that makes the surrogate the FEM–ML runs use:
         the RVE packings (DEM), every training source (the reference runs of the training paths, the
-        RVE-path sets), the dataset and the two networks of rule fem_ml (the no-history ablation is
-        not part of the answer)."""
+        RVE-path sets), the dataset and the networks rule fem_ml reads (:meth:`fem_ml_models`; the
+        no-history ablation is not part of the answer)."""
         L = self.layout
         reference = "FEM–DEM" if self.reference == "fem_dem" else "elastoplastic model (stands in for FEM–DEM)"
         items = []
@@ -459,9 +469,9 @@ class Plan:
                    self.reference_run(path)) for path in self.training_run_paths]
         items += [(f"RVE paths '{name}' (rule rve_paths, training data)", "benchmark",
                    L.benchmark(f"rve_paths/{name}")) for name in self.training_rve_sets]
-        items += [("dataset (rule dataset)", "benchmark", L.benchmark("surrogate/dataset")),
-                  ("training NNσ (rule train_sigma)", "benchmark", L.benchmark("surrogate/train_sigma")),
-                  ("training ND (rule train_tangent)", "benchmark", L.benchmark("surrogate/train_tangent"))]
+        items.append(("dataset (rule dataset)", "benchmark", L.benchmark("surrogate/dataset")))
+        items += [(f"training {NETWORK_LABEL[kind]} (rule train_{kind})", "benchmark", L.benchmark(f"surrogate/train_{kind}"))
+                  for kind in self.fem_ml_models()]
         return items
 
     def problem_run(self, problem: str, case: str) -> str:

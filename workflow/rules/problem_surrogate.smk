@@ -37,8 +37,7 @@ CAT_PROBLEMS_SURROGATE = "8 The surrogate on the problems"
 use rule fem_ml as problem_fem_ml with:
     input:
         # the biaxial test's weak zone gets its own networks where surrogate.weak_zone_sources trains them
-        unpack(lambda wc: {"sigma": L.model("sigma"), "tangent": L.model("tangent"),
-                           **PLAN.weak_zone_models(wc.problem)}),
+        unpack(lambda wc: PLAN.fem_ml_models(problem=wc.problem)),
     output:
         L.problem_run("{problem}", "fem_ml", "{case}"),
     log:
@@ -54,6 +53,8 @@ use rule fem_ml as problem_fem_ml with:
 
 
 use rule problem_fem_ml as problem_fem_ml_as_reference with:
+    input:
+        unpack(lambda wc: PLAN.fem_ml_models(problem=wc.problem, tangent="nn")),
     output:
         L.problem_run("{problem}", "fem_ml_as_reference", "{case}"),
     log:
@@ -72,8 +73,8 @@ use rule problem_fem_ml as problem_fem_ml_as_reference with:
 
 rule problem_fem_ml_driven:
     input:
-        unpack(lambda wc: {"reference": PLAN.problem_run(wc.problem, wc.case), "sigma": L.model("sigma"),
-                           "tangent": L.model("tangent"), **PLAN.weak_zone_models(wc.problem)}),
+        unpack(lambda wc: {"reference": PLAN.problem_run(wc.problem, wc.case),
+                           **PLAN.fem_ml_models(problem=wc.problem)}),
     output:
         L.problem_run("{problem}", "fem_ml_driven", "{case}"),
     log:

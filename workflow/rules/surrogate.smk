@@ -7,7 +7,8 @@
 #                          <network>_mae.csv (final MAE per component), <network>_loss.png
 #                          networks: sigma, tangent (9 inputs), sigma_nohist (6 inputs), and tangent_nohist
 #                          when surrogate.tangent is nn (PLAN.networks)
-#   fem_ml                 {OUT}/fem_ml/{path}.h5          tangent from config surrogate.tangent
+#   fem_ml                 {OUT}/fem_ml/{path}.h5          tangent from config surrogate.tangent (ND an input
+#                          only when that is nn)
 #   fem_ml_nohist          {OUT}/fem_ml_nohist/{path}.h5   the ablation without history variables
 #   fem_ml_tangent         {OUT}/fem_ml_{nn,autodiff}/{path}.h5   Newton iterations of both tangents
 #   metrics                {OUT}/tables/*.csv
@@ -71,8 +72,7 @@ for _round, (_sources, _networks) in PLAN.training_rounds().items():
 
 rule fem_ml:
     input:
-        sigma=L.model("sigma"),
-        tangent=L.model("tangent"),
+        **PLAN.fem_ml_models(),
     output:
         L.fem_ml("{path}"),
     log:
@@ -90,7 +90,7 @@ rule fem_ml:
 
 rule fem_ml_nohist:
     input:
-        **PLAN.ablation_models(),
+        **PLAN.fem_ml_models(history=False),
     output:
         L.run("fem_ml_nohist", "{path}"),
     log:
