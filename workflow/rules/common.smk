@@ -17,6 +17,13 @@ except (ConfigError, ValueError) as error:
 PLAN = Plan(config)
 L = PLAN.layout
 
+# Job order under `-j N`: Snakemake starts the ready jobs of the largest summed priority that fit
+# the cores. The DEM runs (which take every worker) go first, so that the one-core trainings then
+# run side by side with no DEM run left to wait; of those, ND first (the adaptive runs, two-core
+# again, wait for it), then NNσ, then the no-history ablation.
+DEM_PRIORITY = 10  # above any two trainings together
+TRAINING_PRIORITY = {"tangent": 3, "sigma": 2, "sigma_nohist": 1, "tangent_nohist": 1}
+
 
 def set_aside_corrupt_outputs():
     """Every output whose bytes no longer match the checksum recorded when it was written is

@@ -41,6 +41,7 @@ rule fem_dem:
         specimen=config["specimen"],
         newton=config["newton"],
         path=lambda wildcards: config["load_paths"][wildcards.path],
+    priority: DEM_PRIORITY
     threads: config["dem"]["n_workers"]
     script:
         "../../scripts/run_fem_dem.py"
@@ -68,6 +69,7 @@ rule rve_paths:
         elastoplastic=config["elastoplastic"] if config["reference_material"] == "elastoplastic" else None,
     wildcard_constraints:
         name="|".join(PLAN.rve_path_sets),
+    priority: DEM_PRIORITY
     threads: config["dem"]["n_workers"]
     script:
         "../../scripts/run_rve_paths.py"

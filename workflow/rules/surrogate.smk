@@ -66,6 +66,7 @@ for _round, (_sources, _networks) in PLAN.training_rounds().items():
                 settings=PLAN.training_settings(),
                 seed=config["seed"],
             threads: SURROGATE_THREADS
+            priority: 0 if _round else TRAINING_PRIORITY[_network]
             script:
                 "../../scripts/surrogate_train.py"
 
