@@ -81,8 +81,13 @@ def test_the_default_scale_runs_the_adaptive_curve_in_all(tmp_path):
     for name in ("band_weak", "band_weak_cycles"):
         weak_set = next(job for job in jobs if f"output: {L.rve_paths(name)}" in job)
         assert f"input: {L.weak_packing()}\n" in weak_set
+    # with the default autodiff tangent FEM–ML reads the NNσ only; ND is read where a run is solved with it
     fem_ml = next(job for job in jobs if f"output: {L.problem_run('biaxial', 'fem_ml', 'biaxial')}" in job)
-    assert L.model("sigma", "weak_zone/") in fem_ml and L.model("tangent", "weak_zone/") in fem_ml
+    assert L.model("sigma", "weak_zone/") in fem_ml and L.model("tangent", "weak_zone/") not in fem_ml
+    assert L.model("tangent") not in fem_ml
+    as_reference = next(job for job in jobs
+                        if f"output: {L.problem_run('biaxial', 'fem_ml_as_reference', 'biaxial')}" in job)
+    assert L.model("tangent", "weak_zone/") in as_reference and L.model("tangent") in as_reference
     footing = next(job for job in jobs if f"output: {L.problem_run('footing', 'fem_ml', 'footing')}" in job)
     assert "weak_zone/" not in footing
     assert not out.exists()
