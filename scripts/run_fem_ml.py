@@ -5,7 +5,7 @@ problem (params.problem), with FEM–ML's Newton settings or those of the refere
 from granular_multiscale.config import validate_config
 from granular_multiscale.data import write_run
 from granular_multiscale.runlog import setup_logging, timed_rule
-from granular_multiscale.drivers.fem_ml import run_fem_ml
+from granular_multiscale.drivers.fem_ml import run_fem_ml, weak_zone_models_of
 
 
 def main(config, path_name, sigma, tangent_model, tangent, output, log, allow_partial=False,
@@ -22,10 +22,8 @@ def main(config, path_name, sigma, tangent_model, tangent, output, log, allow_pa
 
 if "snakemake" in globals():
     sm = snakemake  # noqa: F821
-    # the weak zone's networks: inputs of problem_fem_ml on a problem with a weak zone
-    weak = {"sigma": sm.input.weak_sigma, "tangent": sm.input.get("weak_tangent")} if "weak_sigma" in sm.input.keys() else None
     # ND is not an input of a run solved with the autodiff tangent (Plan.fem_ml_models)
     main(dict(sm.config), sm.params.get("path_name") or sm.wildcards.path, sm.input.sigma, sm.input.get("tangent"),
          sm.params.tangent, sm.output[0], sm.log[0], allow_partial=bool(sm.params.get("allow_partial", False)),
          problem=sm.params.get("problem") or "triaxial",
-         weak_zone_models=weak, solver=sm.params.get("solver") or "fem_ml")
+         weak_zone_models=weak_zone_models_of(sm.input), solver=sm.params.get("solver") or "fem_ml")

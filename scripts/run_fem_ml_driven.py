@@ -3,7 +3,7 @@ reference run, with no FEM (the material's error alone; drivers.fem_ml.run_along
 
 from granular_multiscale.config import validate_config
 from granular_multiscale.data import read_run, write_run
-from granular_multiscale.drivers.fem_ml import run_along_reference
+from granular_multiscale.drivers.fem_ml import run_along_reference, weak_zone_models_of
 from granular_multiscale.runlog import setup_logging, timed_rule
 
 
@@ -19,6 +19,5 @@ def main(config, reference, sigma, tangent_model, tangent, problem, output, log,
 
 if "snakemake" in globals():
     sm = snakemake  # noqa: F821
-    weak = {"sigma": sm.input.weak_sigma, "tangent": sm.input.get("weak_tangent")} if "weak_sigma" in sm.input.keys() else None
     main(dict(sm.config), sm.input.reference, sm.input.sigma, sm.input.get("tangent"), sm.params.tangent, sm.wildcards.problem,
-         sm.output[0], sm.log[0], weak_zone_models=weak)
+         sm.output[0], sm.log[0], weak_zone_models=weak_zone_models_of(sm.input))

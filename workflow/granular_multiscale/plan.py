@@ -432,10 +432,8 @@ class Plan:
 
     def training_curves(self) -> dict[str, str]:
         """{'network|series': loss file} of every network the pipeline trains (:attr:`networks`)."""
-        curves = {}
-        for name, (kind, history) in self.networks.items():
-            curves[f"{NETWORK_LABEL[kind]}|{'with history' if history else 'no history'}"] = self.layout.training(f"{name}.csv")
-        return curves
+        return {f"{NETWORK_LABEL[kind]}|{'with history' if history else 'no history'}": self.layout.training(f"{name}.csv")
+                for name, (kind, history) in self.networks.items()}
 
     def stress_strain_names(self) -> list[str]:
         analysis = self.config["analysis"]

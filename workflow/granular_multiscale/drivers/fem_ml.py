@@ -112,6 +112,14 @@ def run_fem_ml(
     return ds
 
 
+def weak_zone_models_of(inputs) -> dict | None:
+    """The weak zone's {"sigma", "tangent"} model files among a rule's named inputs (Plan.fem_ml_models:
+    weak_sigma, and weak_tangent where the run is solved with ND), or None where the problem has none."""
+    if "weak_sigma" not in inputs.keys():
+        return None
+    return {"sigma": inputs.weak_sigma, "tangent": inputs.get("weak_tangent")}
+
+
 def problem_surrogate_material(config: dict, bvp, sigma_model, tangent_model, tangent: str,
                                weak_zone_models: dict | None = None,
                                logger: logging.Logger | None = None) -> MaterialPointSet:
